@@ -1,0 +1,143 @@
+/*
+ * mbfb.h - Modbus master shims for IEC 61131-3 function blocks.
+ *
+ * Public API of c_shims/. Every exported symbol starts with mbfb_ / MBFB_.
+ * Compiles as C11 and as C++ (OpenPLC builds its core with g++).
+ *
+ * Model
+ *   bus     one serial port (or tcp:// gateway) with its settings and ONE worker
+ *           thread that does all I/O on it. Blocks naming the same port share it.
+ *   device  (bus, slave id): owns diagnostics and the offline back-off state.
+ *   request one Modbus transaction posted by a block; lives in a preallocated slot.
+ *
+ * Scan-side calls (mbfb_post, mbfb_poll, mbfb_take, mbfb_cancel, mbfb_dev_diag,
+ * mbfb_strerror) never block, never touch a file descriptor and never allocate.
+ * Setup calls (mbfb_bus_open, mbfb_dev_open) may allocate and start the worker;
+ * they do not wait for the port: opening happens on the worker, and a port that
+ * cannot be opened makes that bus's requests end with MBFB_E_NOPORT.
+ *
+ * Errors are errno-style: functions returning int return a negative -MBFB_E_*
+ * code on failure. Request results carry the positive code (0 = success).
+ * The same numbers are the ErrorID outputs of every function block.
+ */
+#ifndef MBFB_H
+#define MBFB_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+/* ---- framings ---------------------------------------------------------- */
+#define MBFB_FRAMING_RTU       0 /* Modbus RTU via libmodbus                        */
+#define MBFB_FRAMING_ASCII     1 /* ':' hex LRC CR LF (written here: not in libmodbus) */
+#define MBFB_FRAMING_RTU_NOCRC 2 /* MT-S9 Type 2: sends 00 00 as CRC, checks reply CRC */
+#define MBFB_FRAMING_TCP       3 /* Modbus TCP (MBAP) via libmodbus; port "tcp://h:p" */
+
+/* ---- request states (mbfb_poll) ------------------------------------------ */
+#define MBFB_REQ_QUEUED 1 /* posted, waiting for the bus          */
+#define MBFB_REQ_ACTIVE 2 /* on the wire (or retrying)             */
+#define MBFB_REQ_DONE   3 /* finished well; mbfb_take gives data   */
+#define MBFB_REQ_FAILED 4 /* finished with an error; mbfb_take says which */
+
+/* ---- error codes: ONE table shared by shims and every function block ------
+ * 1..63    communication / shim errors
+ * 128+x    the device answered with Modbus exception x (129 = illegal function,
+ *          130 = illegal data address, 131 = illegal data value, 132 = device failure)
+ * 200..255 function-block input errors, found before anything is sent (st_src/)   */
+#define MBFB_OK              0
+#define MBFB_E_TIMEOUT       1  /* no reply after all retries                         */
+#define MBFB_E_CRC           2  /* reply failed its CRC / LRC check (after retries)   */
+#define MBFB_E_BADREPLY      3  /* wrong slave, function, byte count, echo, truncated */
+#define MBFB_E_OFFLINE       4  /* device in back-off after repeated failures: not sent */
+#define MBFB_E_NOPORT        5  /* port does not exist / cannot be opened             */
+#define MBFB_E_PORTLOST      6  /* port failed during I/O (EIO, adapter pulled)       */
+#define MBFB_E_CANCELLED     7  /* cancelled by the block before completion           */
+#define MBFB_E_QUEUEFULL     8  /* no free request slot on that bus                   */
+#define MBFB_E_CONFLICT      9  /* port already open with other settings              */
+#define MBFB_E_INVAL        10  /* bad argument: slave id, count, address, fc, framing */
+#define MBFB_E_BADHANDLE    11  /* unknown or stale bus/device/request handle         */
+#define MBFB_E_NOMEM        12  /* setup could not allocate / too many buses/devices  */
+#define MBFB_E_EXCEPTION_BASE 128 /* + Modbus exception code                          */
+
+/* ---- setup ---------------------------------------------------------------- */
+
+/** Bus settings. Zero-initialise, then fill what you need. */
+typedef struct mbfb_bus_config {
+    const char *port;         /* "/dev/ttyUSB0", a pty path, or "tcp://127.0.0.1:1502" */
+    int baud;                 /* e.g. 9600; ignored for TCP                            */
+    char parity;              /* 'N', 'E' or 'O'                                       */
+    int data_bits;            /* 7 or 8                                               */
+    int stop_bits;            /* 1 or 2                                               */
+    int framing;              /* MBFB_FRAMING_*                                         */
+    int response_timeout_ms;  /* 0 = derived from frame lengths and baud               */
+    int retries;              /* extra attempts after the first; <0 = default (3)      */
+} mbfb_bus_config_t;
+
+/** Open (or join) the bus on cfg->port. Returns a bus handle >= 0, or -MBFB_E_CONFLICT
+ *  if that port is already open with other settings, -MBFB_E_INVAL for bad settings. */
+int mbfb_bus_open(const mbfb_bus_config_t *cfg);
+
+/** Same as mbfb_bus_open with flat arguments; port need not be NUL-terminated
+ *  (port_len bytes are used), as an IEC STRING's body is not. parity: 0=N 1=E 2=O
+ *  or the character 'N'/'E'/'O'. For calls from ST pragmas. */
+int mbfb_bus_open_args(const char *port, int port_len, int baud, int parity, int data_bits,
+                       int stop_bits, int framing, int response_timeout_ms, int retries);
+
+/** Device handle for slave id `slave` on `bus` (0 = broadcast: writes only).
+ *  Returns a device handle >= 0 or a negative error (-MBFB_E_INVAL for slave > 247). */
+int mbfb_dev_open(int bus, int slave);
+
+/* ---- scan side: never block, never allocate ------------------------------- */
+
+/** Post a transaction. fc: 3, 4 (read `count` registers from `addr`), 6 (write values[0]
+ *  to `addr`, count 1), 16 (write `count` values from `addr`). Values are copied.
+ *  Returns a request handle > 0, or a negative error; nothing is sent on error. */
+int mbfb_post(int dev, int fc, int addr, int count, const uint16_t *values);
+
+/** State of a request: MBFB_REQ_QUEUED/ACTIVE/DONE/FAILED, or -MBFB_E_BADHANDLE. */
+int mbfb_poll(int req);
+
+/** Collect a finished request and free its slot. Copies up to `max` registers read into
+ *  `values` (may be NULL for writes). Returns the number of registers copied (>= 0) when
+ *  it succeeded, or the negative error it failed with (e.g. -(128+2) for exception 2).
+ *  Returns -MBFB_E_BADHANDLE if the request is unknown or not finished yet. */
+int mbfb_take(int req, uint16_t *values, int max);
+
+/** Cancel a request: frees the slot now if queued or finished; a request on the wire
+ *  finishes its transaction and is discarded by the worker. Returns 0 or an error. */
+int mbfb_cancel(int req);
+
+/** Per-device diagnostics. */
+typedef struct mbfb_diag {
+    uint32_t requests;        /* transactions started (retries count separately below) */
+    uint32_t good;            /* valid replies                                        */
+    uint32_t timeouts;        /* attempts without a reply                             */
+    uint32_t crc_errors;      /* replies with a bad CRC / LRC                         */
+    uint32_t bad_replies;     /* malformed / wrong slave / wrong echo                 */
+    uint32_t exceptions;      /* exception replies                                    */
+    uint32_t retries;         /* attempts beyond the first                            */
+    uint32_t last_exception;  /* last exception code (1..255), 0 if none              */
+    uint32_t last_rtt_us;     /* round trip of the last good reply, microseconds     */
+    uint32_t offline;         /* 1 while the device is in back-off                    */
+    int32_t  last_error;      /* last MBFB_E_* code on this device (0 = none)         */
+} mbfb_diag_t;
+
+/** Copy the device's diagnostics into *out. Returns 0 or -MBFB_E_BADHANDLE. */
+int mbfb_dev_diag(int dev, mbfb_diag_t *out);
+
+/** Static text for an error code (positive or negative). Never NULL. */
+const char *mbfb_strerror(int code);
+
+/* ---- teardown (tests, program unload) ------------------------------------- */
+
+/** Stop every worker, close every port, free everything. Handles become invalid. */
+void mbfb_shutdown(void);
+
+#ifdef __cplusplus
+}
+#endif
+
+#endif /* MBFB_H */
