@@ -1,0 +1,46 @@
+# common.sh - shared by install.sh and uninstall.sh (sourced, not run).
+#
+# Our only edits to files OpenPLC owns are marker-delimited blocks:
+#   webserver/lib/standard_FB.txt  a block before "{enable code generation}" including mbfb.txt
+#   webserver/core/c_blocks.h      a block at the end including mbfb_blocks.h
+# Every other file we add is listed in webserver/lib/mbfb.manifest, all named mbfb*.
+
+die() { echo "$prog: $*" >&2; exit 1; }
+say() { echo "$prog: $*"; }
+
+MARK_BEGIN='mbfb BEGIN: added by modbus-fb plc_lib/install.sh, removed by plc_lib/uninstall.sh'
+MARK_END='mbfb END'
+MANIFEST=webserver/lib/mbfb.manifest
+
+# check_openplc DIR: DIR looks like an OpenPLC v3 installation we know how to extend.
+check_openplc() {
+    [ -d "$1" ] || die "$1: no such directory"
+    for f in webserver/lib/standard_FB.txt webserver/core/c_blocks.h webserver/core/lib/iec_std_FB.h \
+             webserver/scripts/compile_program.sh; do
+        [ -f "$1/$f" ] || die "$1 is not an OpenPLC v3 installation (missing $f)"
+    done
+    grep -q '^{enable code generation}' "$1/webserver/lib/standard_FB.txt" ||
+        die "$1/webserver/lib/standard_FB.txt has no '{enable code generation}' line: unknown layout"
+    grep -q 'c_blocks.h' "$1/webserver/core/lib/iec_std_FB.h" ||
+        die "$1/webserver/core/lib/iec_std_FB.h does not include c_blocks.h: unknown layout"
+}
+
+# strip_block FILE: print FILE without our marker block; if the block records that it added
+# the file's final newline, take that newline away again (byte-for-byte restore).
+strip_block() {
+    if grep -qF "$MARK_BEGIN [eol]" "$1"; then
+        awk -v b="$MARK_BEGIN" -v e="$MARK_END" '
+            index($0, b) { skip = 1 } !skip { print } skip && index($0, e) { skip = 0 }' "$1" |
+            awk 'NR > 1 { printf "\n" } { printf "%s", $0 }'
+    else
+        awk -v b="$MARK_BEGIN" -v e="$MARK_END" '
+            index($0, b) { skip = 1 } !skip { print } skip && index($0, e) { skip = 0 }' "$1"
+    fi
+}
+
+# replace_if_changed FILE NEW: move NEW over FILE (keeping FILE's mode) only if they differ.
+replace_if_changed() {
+    if cmp -s "$1" "$2"; then rm -f "$2"; return 1; fi
+    cat "$2" > "$1" && rm -f "$2"
+    return 0
+}
