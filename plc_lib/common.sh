@@ -25,17 +25,18 @@ check_openplc() {
         die "$1/webserver/core/lib/iec_std_FB.h does not include c_blocks.h: unknown layout"
 }
 
-# strip_block FILE: print FILE without our marker block; if the block records that it added
-# the file's final newline, take that newline away again (byte-for-byte restore).
+# strip_block FILE: print FILE without our marker block, byte for byte as it was before the
+# block went in: if the file had no final newline (or the block records that install added it:
+# "[eol]"), the output has none either.
 strip_block() {
-    if grep -qF "$MARK_BEGIN [eol]" "$1"; then
-        awk -v b="$MARK_BEGIN" -v e="$MARK_END" '
-            index($0, b) { skip = 1 } !skip { print } skip && index($0, e) { skip = 0 }' "$1" |
-            awk 'NR > 1 { printf "\n" } { printf "%s", $0 }'
+    if ! grep -qF "$MARK_BEGIN" "$1"; then cat "$1"; return; fi
+    if grep -qF "$MARK_BEGIN [eol]" "$1" || [ -n "$(tail -c1 "$1")" ]; then
+        join='NR > 1 { printf "\n" } { printf "%s", $0 }'
     else
-        awk -v b="$MARK_BEGIN" -v e="$MARK_END" '
-            index($0, b) { skip = 1 } !skip { print } skip && index($0, e) { skip = 0 }' "$1"
+        join='{ print }'
     fi
+    awk -v b="$MARK_BEGIN" -v e="$MARK_END" '
+        index($0, b) { skip = 1 } !skip { print } skip && index($0, e) { skip = 0 }' "$1" | awk "$join"
 }
 
 # replace_if_changed FILE NEW: move NEW over FILE (keeping FILE's mode) only if they differ.

@@ -1,0 +1,156 @@
+"""Drive a scratch copy of OpenPLC v3: install plc_lib, compile with OpenPLC's own
+compile_program.sh, run the runtime core, talk to its interactive server.
+
+Used by the e2e tests and by demo.sh. The user's OpenPLC (OPENPLC_HOME) is only read: every
+change happens in a copy under /tmp that close() removes. The runtime's Modbus TCP server binds
+every interface, so start() refuses to run outside a private network namespace (netns.sh).
+"""
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import tempfile
+import time
+
+ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", ".."))
+INTERACTIVE_PORT = 43628  # fixed in OpenPLC's core/interactive_server.cpp
+SKIP = 77
+
+
+def openplc_home():
+    """The OpenPLC v3 to copy, or None when it is not installed."""
+    home = os.environ.get("OPENPLC_HOME") or "/opt/OpenPLC_v3"
+    ok = all(os.path.exists(os.path.join(home, "webserver", p))
+             for p in ("iec2c", "scripts/compile_program.sh", "core/glue_generator", "lib/ieclib.txt"))
+    return home if ok else None
+
+
+def in_private_netns():
+    """True when the only network interface is loopback (we run under netns.sh)."""
+    with open("/proc/net/dev") as f:
+        names = [line.split(":")[0].strip() for line in f.readlines()[2:]]
+    return names == ["lo"]
+
+
+class CompileError(RuntimeError):
+    pass
+
+
+class Scratch:
+    """A throw-away copy of an OpenPLC v3 installation (webserver/ and the snap7 wrapper that
+    compile_program.sh copies in). Use as a context manager."""
+
+    def __init__(self, home=None, keep=False):
+        self.home = home or openplc_home()
+        if not self.home:
+            raise FileNotFoundError("OpenPLC v3 not found (set OPENPLC_HOME)")
+        self.dir = tempfile.mkdtemp(prefix="openplc-scratch-")
+        self.keep = keep
+        shutil.copytree(os.path.join(self.home, "webserver"), os.path.join(self.dir, "webserver"),
+                        symlinks=True, ignore=shutil.ignore_patterns(".git", "__pycache__"))
+        wrapper = os.path.join("utils", "snap7_src", "wrapper")
+        shutil.copytree(os.path.join(self.home, wrapper), os.path.join(self.dir, wrapper), symlinks=True)
+        self.web = os.path.join(self.dir, "webserver")
+        self.proc = None
+        self.log = None
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def run_script(self, script, *args):
+        """Run one of plc_lib's scripts on this copy; returns its output."""
+        r = subprocess.run([os.path.join(ROOT, "plc_lib", script), *args, self.dir],
+                           capture_output=True, text=True)
+        if r.returncode:
+            raise RuntimeError(f"{script} failed:\n{r.stdout}{r.stderr}")
+        return r.stdout
+
+    def install(self, dist=None):
+        return self.run_script("install.sh", *(["--dist", dist] if dist else []))
+
+    def uninstall(self):
+        return self.run_script("uninstall.sh")
+
+    def compile(self, st_path, name="program.st"):
+        """Compile an ST program exactly as OpenPLC does (scripts/compile_program.sh)."""
+        shutil.copyfile(st_path, os.path.join(self.web, "st_files", name))
+        r = subprocess.run(["./scripts/compile_program.sh", name], cwd=self.web,
+                           capture_output=True, text=True)
+        out = r.stdout + r.stderr
+        if r.returncode or "Compilation finished successfully" not in out:
+            raise CompileError(f"compile_program.sh {name} failed:\n{out}")
+        return out
+
+    def start(self, modbus_port=None, timeout=10.0):
+        """Start core/openplc (from webserver/, as OpenPLC does) and, if asked, its Modbus TCP
+        server on modbus_port. Returns once the interactive server answers."""
+        if not in_private_netns():
+            raise RuntimeError("refusing to start the OpenPLC runtime outside a private network "
+                               "namespace (its servers bind every interface): run under tests/e2e/netns.sh")
+        self.log = open(os.path.join(self.dir, "runtime.log"), "w+")
+        self.proc = subprocess.Popen(["./core/openplc"], cwd=self.web, stdout=self.log,
+                                     stderr=subprocess.STDOUT, start_new_session=True)
+        deadline = time.monotonic() + timeout
+        while True:
+            try:
+                socket.create_connection(("127.0.0.1", INTERACTIVE_PORT), timeout=1).close()
+                break
+            except OSError:
+                if self.proc.poll() is not None or time.monotonic() > deadline:
+                    raise RuntimeError("OpenPLC runtime did not start:\n" + self.runtime_log())
+                time.sleep(0.1)
+        if modbus_port:
+            self.command(f"start_modbus({modbus_port})")
+            wait_port(modbus_port, deadline - time.monotonic())
+
+    def command(self, cmd):
+        """Send one command to the runtime's interactive server (interactive_server.cpp)."""
+        with socket.create_connection(("127.0.0.1", INTERACTIVE_PORT), timeout=5) as s:
+            s.sendall(cmd.encode() + b"\n")
+            s.settimeout(0.5)
+            try:
+                return s.recv(4096).decode(errors="replace")
+            except socket.timeout:
+                return ""
+
+    def runtime_log(self):
+        if not self.log:
+            return ""
+        self.log.flush()
+        with open(self.log.name) as f:
+            return f.read()
+
+    def stop(self):
+        """Stop the runtime we started: quit() first, then SIGKILL by pid."""
+        if self.proc and self.proc.poll() is None:
+            try:
+                self.command("quit()")
+                self.proc.wait(timeout=5)
+            except (OSError, subprocess.TimeoutExpired):
+                os.kill(self.proc.pid, signal.SIGKILL)
+                self.proc.wait()
+        self.proc = None
+
+    def close(self):
+        self.stop()
+        if self.log:
+            self.log.close()
+            self.log = None
+        if not self.keep:
+            shutil.rmtree(self.dir, ignore_errors=True)
+
+
+def wait_port(port, timeout):
+    deadline = time.monotonic() + max(timeout, 0.5)
+    while True:
+        try:
+            socket.create_connection(("127.0.0.1", port), timeout=1).close()
+            return
+        except OSError:
+            if time.monotonic() > deadline:
+                raise RuntimeError(f"nothing listens on 127.0.0.1:{port}")
+            time.sleep(0.1)
