@@ -1,0 +1,110 @@
+/*
+ * mbfb_backend_ascii.c - Modbus ASCII framing: ':' + hex(frame + LRC) + CR LF.
+ *
+ * Written here because libmodbus has no ASCII mode. The serial port itself is still
+ * opened, configured and flushed by libmodbus (mbfb_backend_lm.c); only the framing
+ * is ours. A ':' always starts a new frame, so noise before it is skipped.
+ */
+#include <errno.h>
+#include <poll.h>
+#include <unistd.h>
+
+#include "mbfb_internal.h"
+
+static const char hexd[] = "0123456789ABCDEF";
+
+static int hexval(int c)
+{
+    if (c >= '0' && c <= '9')
+        return c - '0';
+    if (c >= 'A' && c <= 'F')
+        return c - 'A' + 10;
+    if (c >= 'a' && c <= 'f')
+        return c - 'a' + 10;
+    return -1;
+}
+
+static int ascii_send(mbfb_bus_t *bus, const uint8_t *frame, int len)
+{
+    char out[1 + 2 * (MBFB_FRAME_MAX + 1) + 2];
+    uint8_t lrc = mbfb_lrc(frame, len);
+    int n = 0;
+
+    out[n++] = ':';
+    for (int i = 0; i <= len; i++) {
+        uint8_t b = i < len ? frame[i] : lrc;
+        out[n++] = hexd[b >> 4];
+        out[n++] = hexd[b & 15];
+    }
+    out[n++] = '\r';
+    out[n++] = '\n';
+    return mbfb_fd_write_all(bus, (const uint8_t *)out, n);
+}
+
+/* Wait up to wait_us for input. 1 = readable, 0 = timeout. */
+static int wait_input(int fd, int64_t wait_us)
+{
+    struct pollfd p = {fd, POLLIN, 0};
+    int ms = wait_us <= 0 ? 0 : (int)((wait_us + 999) / 1000);
+    int rc;
+    while ((rc = poll(&p, 1, ms)) < 0 && errno == EINTR) {
+    }
+    return rc > 0;
+}
+
+enum { A_IDLE, A_HEX, A_CR };
+
+static int ascii_recv(mbfb_bus_t *bus, const uint8_t *req, uint8_t *frame, int max,
+                      int timeout_us)
+{
+    int64_t deadline = mbfb_now_us() + timeout_us;
+    int state = A_IDLE, nhex = 0, got_any = 0, hi = 0;
+    uint8_t bin[MBFB_FRAME_MAX + 1];
+
+    (void)req;
+    for (;;) {
+        uint8_t chunk[64];
+        int64_t wait = got_any ? bus->timing.byte_us : deadline - mbfb_now_us();
+        ssize_t n;
+
+        if (!wait_input(bus->fd, wait))
+            return got_any ? -MBFB_E_BADREPLY : -MBFB_E_TIMEOUT; /* truncated / none */
+        n = read(bus->fd, chunk, sizeof chunk);
+        if (n < 0 && (errno == EAGAIN || errno == EINTR))
+            continue;
+        if (n <= 0)
+            return -MBFB_E_PORTLOST;
+        got_any = 1;
+        for (ssize_t i = 0; i < n; i++) {
+            int c = chunk[i] & 0x7F, v;
+            if (c == ':') {            /* a colon always starts a frame */
+                state = A_HEX;
+                nhex = 0;
+            } else if (state == A_HEX && c == '\r') {
+                state = A_CR;
+            } else if (state == A_HEX && (v = hexval(c)) >= 0) {
+                if (nhex / 2 >= (int)sizeof bin)
+                    return -MBFB_E_BADREPLY;
+                if (nhex & 1)
+                    bin[nhex / 2] = (uint8_t)(hi << 4 | v);
+                hi = v;
+                nhex++;
+            } else if (state == A_CR && c == '\n') {
+                int len = nhex / 2 - 1; /* without the LRC */
+                if ((nhex & 1) || len < 2 || len > max)
+                    return -MBFB_E_BADREPLY;
+                if (mbfb_lrc(bin, len) != bin[len])
+                    return -MBFB_E_CRC;
+                for (int k = 0; k < len; k++)
+                    frame[k] = bin[k];
+                return len;
+            } else if (state != A_IDLE) {
+                return -MBFB_E_BADREPLY; /* garbage inside a frame */
+            }
+        }
+    }
+}
+
+const mbfb_backend_t mbfb_backend_ascii = {
+    "ascii", mbfb_serial_open, mbfb_lm_close, mbfb_lm_flush, mbfb_serial_resync,
+    ascii_send, ascii_recv};

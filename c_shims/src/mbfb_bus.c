@@ -1,0 +1,216 @@
+/*
+ * mbfb_bus.c - setup and teardown: the bus and device registry.
+ *
+ * Setup calls take a mutex (they may allocate and start a thread); the scan-side
+ * calls never do: they read the registry through pointers published with release
+ * stores, which stay valid until mbfb_shutdown.
+ */
+#include <stdlib.h>
+#include <string.h>
+
+#include "mbfb_internal.h"
+
+mbfb_bus_t *mbfb_buses[MBFB_MAX_BUSES];
+mbfb_dev_t *mbfb_devs[MBFB_MAX_DEVICES];
+
+static pthread_mutex_t registry_lock = PTHREAD_MUTEX_INITIALIZER;
+static uint32_t slot_epoch; /* first generation of a new bus's slots (under the lock) */
+
+static int is_tcp(const char *port)
+{
+    return strncmp(port, "tcp://", 6) == 0;
+}
+
+/* Check and normalise a configuration. 0 or MBFB_E_INVAL. */
+static int normalise(mbfb_bus_config_t *c)
+{
+    if (c->port == NULL || c->port[0] == 0 || strlen(c->port) > 255)
+        return MBFB_E_INVAL;
+    if (c->framing < MBFB_FRAMING_RTU || c->framing > MBFB_FRAMING_TCP)
+        return MBFB_E_INVAL;
+    /* tcp:// carries Modbus TCP only (libmodbus has no RTU-over-TCP) and vice versa */
+    if ((c->framing == MBFB_FRAMING_TCP) != is_tcp(c->port))
+        return MBFB_E_INVAL;
+    if (c->retries < 0)
+        c->retries = MBFB_DEFAULT_RETRIES;
+    if (c->retries > 20 || c->response_timeout_ms < 0 || c->response_timeout_ms > 60000)
+        return MBFB_E_INVAL;
+    if (c->framing == MBFB_FRAMING_TCP) { /* line settings unused; baud only for timing */
+        c->baud = c->baud > 0 ? c->baud : 9600;
+        c->parity = 'N';
+        c->data_bits = 8;
+        c->stop_bits = 1;
+        return 0;
+    }
+    if (c->parity == 'n' || c->parity == 'e' || c->parity == 'o')
+        c->parity = (char)(c->parity - 'a' + 'A');
+    if (c->baud < 50 || c->baud > 4000000 ||
+        (c->parity != 'N' && c->parity != 'E' && c->parity != 'O') ||
+        (c->stop_bits != 1 && c->stop_bits != 2) ||
+        (c->data_bits != 8 && !(c->data_bits == 7 && c->framing == MBFB_FRAMING_ASCII)))
+        return MBFB_E_INVAL; /* RTU is binary: 8 data bits */
+    return 0;
+}
+
+static int same_settings(const mbfb_bus_config_t *a, const mbfb_bus_config_t *b)
+{
+    return a->baud == b->baud && a->parity == b->parity && a->data_bits == b->data_bits &&
+           a->stop_bits == b->stop_bits && a->framing == b->framing &&
+           a->response_timeout_ms == b->response_timeout_ms && a->retries == b->retries;
+}
+
+static const mbfb_backend_t *backend_for(int framing)
+{
+    switch (framing) {
+    case MBFB_FRAMING_ASCII:     return &mbfb_backend_ascii;
+    case MBFB_FRAMING_RTU_NOCRC: return &mbfb_backend_nocrc;
+    case MBFB_FRAMING_TCP:       return &mbfb_backend_tcp;
+    default:                     return &mbfb_backend_rtu;
+    }
+}
+
+static void bus_free(mbfb_bus_t *bus)
+{
+    free(bus->port);
+    free(bus);
+}
+
+/* Allocate a bus and start its worker. Called with the registry lock held. */
+static int bus_create(int index, const mbfb_bus_config_t *c)
+{
+    mbfb_bus_t *bus = (mbfb_bus_t *)calloc(1, sizeof *bus);
+    size_t n = strlen(c->port) + 1;
+
+    if (bus == NULL || (bus->port = (char *)malloc(n)) == NULL) {
+        free(bus);
+        return -MBFB_E_NOMEM;
+    }
+    memcpy(bus->port, c->port, n);
+    bus->cfg = *c;
+    bus->cfg.port = bus->port;
+    bus->be = backend_for(c->framing);
+    mbfb_timing_init(&bus->timing, c->baud, c->parity, c->data_bits, c->stop_bits);
+    if (c->framing == MBFB_FRAMING_TCP)
+        bus->timing.gap_us = 0; /* the gateway paces its serial line */
+    bus->fd = -1;
+    bus->index = index;
+    slot_epoch += 4096; /* handles from before a shutdown stay stale */
+    for (int i = 0; i < MBFB_MAX_SLOTS; i++)
+        bus->slots[i].state = (slot_epoch & MBFB_GEN_MASK) << 4;
+    if (sem_init(&bus->wake, 0, 0) != 0 ||
+        pthread_create(&bus->worker, NULL, mbfb_worker_main, bus) != 0) {
+        bus_free(bus);
+        return -MBFB_E_NOMEM;
+    }
+    __atomic_store_n(&mbfb_buses[index], bus, __ATOMIC_RELEASE);
+    return index;
+}
+
+int mbfb_bus_open(const mbfb_bus_config_t *cfg)
+{
+    mbfb_bus_config_t c;
+    int rc = -MBFB_E_NOMEM, free_index = -1;
+
+    if (cfg == NULL)
+        return -MBFB_E_INVAL;
+    c = *cfg;
+    if (normalise(&c) != 0)
+        return -MBFB_E_INVAL;
+    pthread_mutex_lock(&registry_lock);
+    for (int i = 0; i < MBFB_MAX_BUSES; i++) {
+        mbfb_bus_t *b = mbfb_buses[i];
+        if (b == NULL) {
+            if (free_index < 0)
+                free_index = i;
+        } else if (strcmp(b->port, c.port) == 0) {
+            rc = same_settings(&b->cfg, &c) ? i : -MBFB_E_CONFLICT;
+            free_index = -2;
+            break;
+        }
+    }
+    if (free_index >= 0)
+        rc = bus_create(free_index, &c);
+    pthread_mutex_unlock(&registry_lock);
+    return rc;
+}
+
+int mbfb_bus_open_args(const char *port, int port_len, int baud, int parity, int data_bits,
+                       int stop_bits, int framing, int response_timeout_ms, int retries)
+{
+    static const char parities[] = {'N', 'E', 'O'};
+    char buf[256];
+    mbfb_bus_config_t c;
+    int n = 0;
+
+    if (port == NULL || port_len <= 0 || port_len >= (int)sizeof buf)
+        return -MBFB_E_INVAL;
+    while (n < port_len && port[n] != 0) /* an IEC STRING body is not NUL-terminated */
+        buf[n] = port[n], n++;
+    while (n > 0 && buf[n - 1] == ' ')
+        n--;
+    buf[n] = 0;
+    memset(&c, 0, sizeof c);
+    c.port = buf;
+    c.baud = baud;
+    c.parity = (char)(parity >= 0 && parity <= 2 ? parities[parity] : parity);
+    c.data_bits = data_bits;
+    c.stop_bits = stop_bits;
+    c.framing = framing;
+    c.response_timeout_ms = response_timeout_ms;
+    c.retries = retries;
+    return mbfb_bus_open(&c);
+}
+
+int mbfb_dev_open(int bus, int slave)
+{
+    mbfb_bus_t *b;
+    int rc = -MBFB_E_NOMEM;
+
+    if (bus < 0 || bus >= MBFB_MAX_BUSES ||
+        (b = __atomic_load_n(&mbfb_buses[bus], __ATOMIC_ACQUIRE)) == NULL)
+        return -MBFB_E_BADHANDLE;
+    /* Modbus serial: 1..247, 0 = broadcast; TCP unit identifiers go to 255 */
+    if (slave < 0 || slave > (b->cfg.framing == MBFB_FRAMING_TCP ? 255 : 247))
+        return -MBFB_E_INVAL;
+    pthread_mutex_lock(&registry_lock);
+    for (int i = 0; i < MBFB_MAX_DEVICES; i++) {
+        mbfb_dev_t *d = mbfb_devs[i];
+        if (d != NULL && d->bus == bus && d->slave == slave) {
+            rc = i; /* blocks on one device share it (and its diagnostics) */
+            break;
+        }
+        if (d == NULL) {
+            d = (mbfb_dev_t *)calloc(1, sizeof *d);
+            if (d != NULL) {
+                d->bus = bus;
+                d->slave = slave;
+                __atomic_store_n(&mbfb_devs[i], d, __ATOMIC_RELEASE);
+                rc = i;
+            }
+            break;
+        }
+    }
+    pthread_mutex_unlock(&registry_lock);
+    return rc;
+}
+
+void mbfb_shutdown(void)
+{
+    pthread_mutex_lock(&registry_lock);
+    for (int i = 0; i < MBFB_MAX_BUSES; i++) {
+        mbfb_bus_t *b = mbfb_buses[i];
+        if (b == NULL)
+            continue;
+        __atomic_store_n(&b->stop, 1, __ATOMIC_RELEASE);
+        sem_post(&b->wake);
+        pthread_join(b->worker, NULL);
+        __atomic_store_n(&mbfb_buses[i], (mbfb_bus_t *)NULL, __ATOMIC_RELEASE);
+        sem_destroy(&b->wake);
+        bus_free(b);
+    }
+    for (int i = 0; i < MBFB_MAX_DEVICES; i++) {
+        free(mbfb_devs[i]);
+        __atomic_store_n(&mbfb_devs[i], (mbfb_dev_t *)NULL, __ATOMIC_RELEASE);
+    }
+    pthread_mutex_unlock(&registry_lock);
+}

@@ -1,0 +1,44 @@
+/*
+ * mbfb_errors.c - texts of the one error table (mbfb.h) shared by shims and blocks.
+ */
+#include "mbfb.h"
+
+const char *mbfb_strerror(int code)
+{
+    static const char *const text[] = {
+        "no error",
+        "timeout: no reply after all retries",
+        "CRC/LRC error in the reply",
+        "bad reply: wrong slave, function, byte count or echo, or truncated",
+        "device offline (back-off after repeated failures): not sent",
+        "port does not exist or cannot be opened",
+        "port lost during I/O",
+        "cancelled",
+        "request queue full",
+        "port already open with other settings",
+        "invalid argument",
+        "unknown or stale handle",
+        "out of memory or too many buses/devices",
+    };
+    static const char *const exc[] = {
+        "Modbus exception",
+        "Modbus exception 1: illegal function",
+        "Modbus exception 2: illegal data address",
+        "Modbus exception 3: illegal data value",
+        "Modbus exception 4: slave device failure",
+        "Modbus exception 5: acknowledge",
+        "Modbus exception 6: slave device busy",
+    };
+
+    if (code < 0)
+        code = -code;
+    if (code < (int)(sizeof text / sizeof text[0]))
+        return text[code];
+    if (code > MBFB_E_EXCEPTION_BASE && code < MBFB_E_EXCEPTION_BASE + 7)
+        return exc[code - MBFB_E_EXCEPTION_BASE];
+    if (code > MBFB_E_EXCEPTION_BASE && code < 200)
+        return exc[0];
+    if (code >= 200 && code <= 255)
+        return "function block input error (see the block's documentation)";
+    return "unknown error";
+}

@@ -1,0 +1,110 @@
+/*
+ * mbfb_frame.c - request frames, reply validation, CRC-16 and LRC.
+ *
+ * Reply validation lives here once and is shared by every backend: libmodbus's
+ * modbus_receive_confirmation() only frames and checks the CRC, and its own
+ * check_confirmation() is private to its high-level calls and does not compare the
+ * value echoed by FC06.
+ */
+#include <string.h>
+
+#include "mbfb_internal.h"
+
+/* libmodbus keeps its CRC static; this one is for the ASCII/test peers and tests,
+ * verified against every worked frame of the manuals (tests/shims). */
+uint16_t mbfb_crc16(const uint8_t *buf, int len)
+{
+    uint16_t crc = 0xFFFF;
+    for (int i = 0; i < len; i++) {
+        crc ^= buf[i];
+        for (int b = 0; b < 8; b++)
+            crc = (crc & 1) ? (uint16_t)((crc >> 1) ^ 0xA001) : (uint16_t)(crc >> 1);
+    }
+    return crc;
+}
+
+uint8_t mbfb_lrc(const uint8_t *buf, int len)
+{
+    uint8_t sum = 0;
+    for (int i = 0; i < len; i++)
+        sum = (uint8_t)(sum + buf[i]);
+    return (uint8_t)(-sum);
+}
+
+static void put16(uint8_t *p, int v)
+{
+    p[0] = (uint8_t)((v >> 8) & 0xFF);
+    p[1] = (uint8_t)(v & 0xFF);
+}
+
+int mbfb_build_request(uint8_t *out, int slave, int fc, int addr, int count,
+                       const uint16_t *values)
+{
+    out[0] = (uint8_t)slave;
+    out[1] = (uint8_t)fc;
+    put16(out + 2, addr);
+    if (fc == 6) {
+        put16(out + 4, values[0]);
+        return 6;
+    }
+    put16(out + 4, count);
+    if (fc != 16)
+        return 6;
+    out[6] = (uint8_t)(2 * count);
+    for (int i = 0; i < count; i++)
+        put16(out + 7 + 2 * i, values[i]);
+    return 7 + 2 * count;
+}
+
+int mbfb_reply_len(const uint8_t *req)
+{
+    if (req[1] == 3 || req[1] == 4)
+        return 3 + 2 * ((req[4] << 8) | req[5]);
+    return 6; /* FC06 echo, FC16 address + count */
+}
+
+int mbfb_check_reply(const uint8_t *req, const uint8_t *rsp, int len)
+{
+    int fc = req[1];
+
+    if (len < 3 || rsp[0] != req[0])
+        return MBFB_E_BADREPLY;
+    if (rsp[1] == (fc | 0x80))
+        return (len == 3 && rsp[2] != 0) ? MBFB_E_EXCEPTION_BASE + rsp[2] : MBFB_E_BADREPLY;
+    if (rsp[1] != fc || len != mbfb_reply_len(req))
+        return MBFB_E_BADREPLY;
+    switch (fc) {
+    case 3:
+    case 4:
+        return rsp[2] == len - 3 ? MBFB_OK : MBFB_E_BADREPLY;
+    case 6:  /* echo of address and value */
+    case 16: /* echo of address and count */
+        return memcmp(rsp + 2, req + 2, 4) == 0 ? MBFB_OK : MBFB_E_BADREPLY;
+    default:
+        return MBFB_E_BADREPLY;
+    }
+}
+
+int mbfb_check_args(int slave, int fc, int addr, int count, const uint16_t *values)
+{
+    if (addr < 0 || addr > 0xFFFF)
+        return MBFB_E_INVAL;
+    switch (fc) {
+    case 3:
+    case 4:
+        if (slave == 0 || count < 1 || count > MBFB_MAX_READ)
+            return MBFB_E_INVAL; /* broadcast reads get no reply: refused */
+        break;
+    case 6:
+        if (count != 1 || values == NULL)
+            return MBFB_E_INVAL;
+        break;
+    case 16:
+        if (count < 1 || count > MBFB_MAX_WRITE || values == NULL)
+            return MBFB_E_INVAL;
+        break;
+    default:
+        return MBFB_E_INVAL;
+    }
+    return addr + count > 0x10000 ? MBFB_E_INVAL : MBFB_OK;
+}

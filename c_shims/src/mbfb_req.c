@@ -1,0 +1,213 @@
+/*
+ * mbfb_req.c - the scan-side calls (post, poll, take, cancel, diag) and the worker's
+ * side of the request slots.
+ *
+ * Lock-free: every slot has one state word, (generation << 4) | MBFB_SLOT_*, changed
+ * only by __atomic compare-and-swap (GCC/Clang builtins: the same code compiles as C
+ * and as C++11, which <stdatomic.h> does not). Producers claim a FREE slot by CAS, so
+ * any number of threads may post. The worker is woken with sem_post, which neither
+ * blocks nor allocates. A request handle carries the slot's generation, so a handle
+ * that was taken or cancelled is stale and gives -MBFB_E_BADHANDLE.
+ *
+ * handle - 1 = generation << 10 | bus << 6 | slot
+ */
+#include <string.h>
+
+#include "mbfb_internal.h"
+
+#define LOAD(p) __atomic_load_n((p), __ATOMIC_ACQUIRE)
+#define CAS(p, expect, desired) \
+    __atomic_compare_exchange_n((p), &(expect), (desired), 0, __ATOMIC_ACQ_REL, __ATOMIC_ACQUIRE)
+#define ST(w) ((w) & 15u)
+#define GEN(w) ((w) >> 4)
+#define WORD(gen, st) (((gen) << 4) | (st))
+
+static int make_handle(int bus, int slot, uint32_t gen)
+{
+    return 1 + (int)((gen << 10) | (uint32_t)(bus << 6) | (uint32_t)slot);
+}
+
+/* The slot a handle names, and the generation it expects; NULL if malformed. */
+static mbfb_slot_t *slot_of(int req, uint32_t *gen)
+{
+    mbfb_bus_t *bus;
+    uint32_t h;
+
+    if (req <= 0)
+        return NULL;
+    h = (uint32_t)(req - 1);
+    bus = __atomic_load_n(&mbfb_buses[(h >> 6) & (MBFB_MAX_BUSES - 1)], __ATOMIC_ACQUIRE);
+    if (bus == NULL)
+        return NULL;
+    *gen = h >> 10;
+    return &bus->slots[h & (MBFB_MAX_SLOTS - 1)];
+}
+
+int mbfb_post(int dev, int fc, int addr, int count, const uint16_t *values)
+{
+    mbfb_dev_t *d;
+    mbfb_bus_t *bus;
+    mbfb_slot_t *s = NULL;
+    uint32_t gen = 0;
+    int i;
+
+    if (dev < 0 || dev >= MBFB_MAX_DEVICES ||
+        (d = __atomic_load_n(&mbfb_devs[dev], __ATOMIC_ACQUIRE)) == NULL)
+        return -MBFB_E_BADHANDLE;
+    if (mbfb_check_args(d->slave, fc, addr, count, values) != MBFB_OK)
+        return -MBFB_E_INVAL;
+    bus = __atomic_load_n(&mbfb_buses[d->bus], __ATOMIC_ACQUIRE);
+    for (i = 0; i < MBFB_MAX_SLOTS; i++) {
+        uint32_t w = LOAD(&bus->slots[i].state);
+        if (ST(w) != MBFB_SLOT_FREE)
+            continue;
+        gen = (GEN(w) + 1) & MBFB_GEN_MASK;
+        if (CAS(&bus->slots[i].state, w, WORD(gen, MBFB_SLOT_CLAIMED))) {
+            s = &bus->slots[i];
+            break;
+        }
+    }
+    if (s == NULL)
+        return -MBFB_E_QUEUEFULL;
+    s->dev = dev;
+    s->fc = fc;
+    s->addr = addr;
+    s->count = count;
+    s->result = 0;
+    s->nvals = 0;
+    if (fc == 6 || fc == 16)
+        memcpy(s->values, values, (size_t)count * sizeof values[0]);
+    __atomic_store_n(&s->seq, __atomic_fetch_add(&bus->post_seq, 1u, __ATOMIC_RELAXED),
+                     __ATOMIC_RELAXED);
+    __atomic_store_n(&s->state, WORD(gen, MBFB_SLOT_QUEUED), __ATOMIC_RELEASE);
+    sem_post(&bus->wake);
+    return make_handle(d->bus, i, gen);
+}
+
+int mbfb_poll(int req)
+{
+    uint32_t gen, w;
+    mbfb_slot_t *s = slot_of(req, &gen);
+
+    if (s == NULL || GEN(w = LOAD(&s->state)) != gen)
+        return -MBFB_E_BADHANDLE;
+    switch (ST(w)) {
+    case MBFB_SLOT_QUEUED: return MBFB_REQ_QUEUED;
+    case MBFB_SLOT_ACTIVE: return MBFB_REQ_ACTIVE;
+    case MBFB_SLOT_DONE:   return MBFB_REQ_DONE;
+    case MBFB_SLOT_FAILED: return MBFB_REQ_FAILED;
+    default:               return -MBFB_E_BADHANDLE;
+    }
+}
+
+int mbfb_take(int req, uint16_t *values, int max)
+{
+    uint32_t gen, w;
+    mbfb_slot_t *s = slot_of(req, &gen);
+    int rc;
+
+    if (s == NULL || GEN(w = LOAD(&s->state)) != gen)
+        return -MBFB_E_BADHANDLE;
+    if (ST(w) == MBFB_SLOT_FAILED) {
+        rc = -s->result;
+    } else if (ST(w) == MBFB_SLOT_DONE) {
+        rc = values == NULL || max < 0 ? 0 : (s->nvals < max ? s->nvals : max);
+        if (rc > 0)
+            memcpy(values, s->values, (size_t)rc * sizeof values[0]);
+    } else {
+        return -MBFB_E_BADHANDLE; /* not finished (or already taken) */
+    }
+    /* free the slot; fails only if another thread took or cancelled it meanwhile */
+    return CAS(&s->state, w, WORD(gen, MBFB_SLOT_FREE)) ? rc : -MBFB_E_BADHANDLE;
+}
+
+int mbfb_cancel(int req)
+{
+    uint32_t gen, w, next;
+    mbfb_slot_t *s = slot_of(req, &gen);
+
+    if (s == NULL)
+        return -MBFB_E_BADHANDLE;
+    for (;;) {
+        w = LOAD(&s->state);
+        if (GEN(w) != gen)
+            return -MBFB_E_BADHANDLE;
+        switch (ST(w)) {
+        case MBFB_SLOT_QUEUED:
+        case MBFB_SLOT_DONE:
+        case MBFB_SLOT_FAILED:
+            next = WORD(gen, MBFB_SLOT_FREE);
+            break;
+        case MBFB_SLOT_ACTIVE: /* on the wire: the worker frees it when done */
+            next = WORD(gen, MBFB_SLOT_CANCELLED);
+            break;
+        default:
+            return -MBFB_E_BADHANDLE;
+        }
+        if (CAS(&s->state, w, next))
+            return 0;
+    }
+}
+
+int mbfb_dev_diag(int dev, mbfb_diag_t *out)
+{
+    mbfb_dev_t *d;
+    const uint32_t *src;
+    uint32_t *dst;
+
+    if (out == NULL || dev < 0 || dev >= MBFB_MAX_DEVICES ||
+        (d = __atomic_load_n(&mbfb_devs[dev], __ATOMIC_ACQUIRE)) == NULL)
+        return -MBFB_E_BADHANDLE;
+    /* every field is 32 bits and written by the worker with __atomic stores */
+    src = (const uint32_t *)&d->diag;
+    dst = (uint32_t *)out;
+    for (size_t i = 0; i < sizeof *out / sizeof *dst; i++)
+        dst[i] = __atomic_load_n(&src[i], __ATOMIC_RELAXED);
+    return 0;
+}
+
+/* ---- worker side ---------------------------------------------------------- */
+
+mbfb_slot_t *mbfb_slot_next(mbfb_bus_t *bus)
+{
+    for (;;) {
+        mbfb_slot_t *best = NULL;
+        uint32_t best_w = 0, best_seq = 0;
+        for (int i = 0; i < MBFB_MAX_SLOTS; i++) {
+            uint32_t w = LOAD(&bus->slots[i].state), seq;
+            if (ST(w) != MBFB_SLOT_QUEUED)
+                continue;
+            seq = __atomic_load_n(&bus->slots[i].seq, __ATOMIC_RELAXED);
+            if (best == NULL || (int32_t)(seq - best_seq) < 0) {
+                best = &bus->slots[i];
+                best_w = w;
+                best_seq = seq;
+            }
+        }
+        if (best == NULL)
+            return NULL;
+        if (CAS(&best->state, best_w, WORD(GEN(best_w), MBFB_SLOT_ACTIVE)))
+            return best;
+        /* cancelled meanwhile: look again */
+    }
+}
+
+void mbfb_slot_finish(mbfb_slot_t *s, int result)
+{
+    uint32_t w = LOAD(&s->state);
+    s->result = result;
+    for (;;) {
+        uint32_t next = WORD(GEN(w), ST(w) == MBFB_SLOT_CANCELLED
+                                         ? MBFB_SLOT_FREE
+                                         : (result == MBFB_OK ? MBFB_SLOT_DONE : MBFB_SLOT_FAILED));
+        if (CAS(&s->state, w, next))
+            return;
+    }
+}
+
+void mbfb_slot_fail_queued(mbfb_bus_t *bus, int result)
+{
+    mbfb_slot_t *s;
+    while ((s = mbfb_slot_next(bus)) != NULL)
+        mbfb_slot_finish(s, result);
+}
