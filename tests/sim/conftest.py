@@ -1,0 +1,103 @@
+"""Shared helpers of the simulator tests: independent masters (mbpoll, minimalmodbus)."""
+import os
+import shutil
+import subprocess
+import sys
+
+import pytest
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+
+REQUIRE = os.environ.get("MBFB_REQUIRE_TOOLCHAIN") == "1"
+
+
+def mbpoll(port, *args, write=(), baud=9600, parity="none", stop=2, timeout=10):
+    """Run mbpoll once in RTU mode (0-based references); write: values to write."""
+    exe = shutil.which("mbpoll")
+    if exe is None:
+        if REQUIRE:
+            pytest.fail("mbpoll is not installed (.ci/apt-packages.txt)")
+        pytest.skip("mbpoll is not installed")
+    cmd = [exe, "-m", "rtu", "-b", str(baud), "-P", parity, "-s", str(stop), "-0", "-1",
+           "-o", "0.5", *map(str, args), port, *map(str, write)]
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, check=False)
+
+
+def mbpoll_values(result):
+    """{reference: value} from mbpoll's '[ref]: value' lines."""
+    out = {}
+    for line in result.stdout.splitlines():
+        line = line.strip()
+        if line.startswith("[") and "]:" in line:
+            ref, _, val = line[1:].partition("]:")
+            out[int(ref)] = int(val.split()[0])
+    return out
+
+
+def instrument(port, addr, mode="rtu", baud=9600, parity="N", stop=2, timeout=0.5):
+    """A minimalmodbus Instrument on the pty (closes the port after each call)."""
+    import minimalmodbus
+    import serial
+    inst = minimalmodbus.Instrument(port, addr, mode=mode, close_port_after_each_call=True)
+    inst.serial.baudrate = baud
+    inst.serial.parity = {"N": serial.PARITY_NONE, "E": serial.PARITY_EVEN,
+                          "O": serial.PARITY_ODD}[parity]
+    inst.serial.stopbits = stop
+    inst.serial.bytesize = 8
+    inst.serial.timeout = timeout
+    inst.clear_buffers_before_each_transaction = True
+    return inst
+
+
+def frames(sim):
+    """(direction, hex) pairs of the frames on the line since the last call."""
+    return [(f["dir"], f["hex"]) for f in sim.log(clear=True)]
+
+
+class RawPort:
+    """A bare serial master (pyserial) to put exact bytes on the line and read what comes."""
+
+    def __init__(self, port, baud=9600):
+        import serial
+        self.ser = serial.Serial(port, baud, timeout=0)
+
+    def xfer(self, data, wait=0.3):
+        """Send bytes (or a hex string); return everything received within `wait` s."""
+        import time
+        if isinstance(data, str):
+            data = bytes.fromhex(data)
+        self.ser.reset_input_buffer()
+        self.ser.write(data)
+        self.ser.flush()
+        end, got = time.monotonic() + wait, b""
+        while time.monotonic() < end:
+            got += self.ser.read(512)
+            time.sleep(0.005)
+        return got
+
+    def close(self):
+        self.ser.close()
+
+
+@pytest.fixture
+def raw_factory():
+    """raw_factory(port) -> RawPort; closed after the test."""
+    ports = []
+
+    def make(port, baud=9600):
+        ports.append(RawPort(port, baud))
+        return ports[-1]
+    yield make
+    for p in ports:
+        p.close()
+
+
+def crc(frame_hex):
+    """Frame hex + its CRC-16/MODBUS (low byte first), computed independently of pymodbus."""
+    data = bytes.fromhex(frame_hex)
+    c = 0xFFFF
+    for b in data:
+        c ^= b
+        for _ in range(8):
+            c = (c >> 1) ^ 0xA001 if c & 1 else c >> 1
+    return (data + bytes([c & 0xFF, c >> 8])).hex(" ").upper()

@@ -1,0 +1,178 @@
+"""The simulator process: builds the devices from the command line and serves them."""
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import os
+import random
+import signal
+import sys
+import time
+
+from .bus import Bus, LineSettings
+from .control import Control
+from .fdc100 import Fdc100
+from .mts9 import MtS9
+from .mvd94 import MvD94, Vd
+from .transport import SerialLine, TcpLine
+
+KINDS = {"mvd94": MvD94, "vd": Vd, "mts9": MtS9, "fdc100": Fdc100}
+TICK_S = 0.05       # real seconds between steps of the dynamics
+INIT_FIRST = ("DP", "INPT", "LOLT", "HILT", "SP1L", "SP1H")   # others' scaling/range use these
+
+
+def parse_args(argv):
+    p = argparse.ArgumentParser(prog="mbsim.py", description=__doc__ + " See tests/sim/README.md.")
+    where = p.add_mutually_exclusive_group(required=True)
+    where.add_argument("--pty", action="store_true", help="serve on a new pty")
+    where.add_argument("--serial", metavar="DEVICE", help="serve on a serial device")
+    where.add_argument("--tcp", metavar="127.0.0.1:PORT", help="Modbus/TCP (PORT 0: any free)")
+    p.add_argument("--link", metavar="PATH", help="with --pty: symlink to the pty")
+    p.add_argument("--baud", type=int, default=9600)
+    p.add_argument("--format", default="8N2", help="data bits, parity N/E/O, stop bits")
+    p.add_argument("--device", action="append", default=[], metavar="KIND:ADDR[:NAME=VALUE,...]",
+                   help="repeatable; KIND = " + " | ".join(KINDS))
+    p.add_argument("--time-scale", type=float, default=1.0)
+    p.add_argument("--pace", action="store_true", help="pace replies like RS-485 at --baud")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--faults", metavar="FILE", help="JSON list of control requests/faults")
+    p.add_argument("--control", metavar="PATH", help="Unix socket of the control protocol")
+    args = p.parse_args(argv)
+    if not args.device:
+        p.error("at least one --device is required")
+    if args.link and not args.pty:
+        p.error("--link needs --pty")
+    if args.time_scale <= 0:
+        p.error("--time-scale must be > 0")
+    return args
+
+
+def parse_device(text: str):
+    """'mvd94:1:SV=100.0,DP=1' -> ('mvd94', 1, [('SV', '100.0'), ('DP', '1')])."""
+    parts = text.split(":", 2)
+    if len(parts) < 2 or parts[0] not in KINDS:
+        raise ValueError(f"--device {text!r}: expected KIND:ADDR[:NAME=VALUE,...], "
+                         f"KIND one of {', '.join(KINDS)}")
+    addr = int(parts[1], 0)
+    if not 1 <= addr <= 255:
+        raise ValueError(f"--device {text!r}: address must be 1..255 (0 is broadcast)")
+    items = []
+    for item in (parts[2].split(",") if len(parts) == 3 and parts[2] else []):
+        name, eq, value = item.partition("=")
+        if not eq or not name.strip():
+            raise ValueError(f"--device {text!r}: {item!r} is not NAME=VALUE")
+        items.append((name.strip(), value.strip()))
+    return parts[0], addr, items
+
+
+def build(args):
+    """LineSettings and devices from the arguments; ValueError on any inconsistency."""
+    data, parity, stop = LineSettings.parse_format(args.format)
+    specs = [parse_device(d) for d in args.device]
+    addrs = [a for _, a, _ in specs]
+    if len(set(addrs)) != len(addrs):
+        raise ValueError("two devices share an address")
+    framings = {v for k, _, items in specs if k == "mts9" for n, v in items if n.lower() == "framing"}
+    if len(framings) > 1:
+        raise ValueError(f"one line carries one framing, got {sorted(framings)}")
+    framing = framings.pop() if framings else "rtu"
+    if framing not in ("rtu", "nocrc", "ascii"):
+        raise ValueError(f"framing must be rtu, nocrc or ascii, not {framing!r}")
+    if framing != "rtu" and any(k != "mts9" for k, _, _ in specs):
+        raise ValueError(f"only mts9 devices speak {framing}; put the others on another line")
+    line = LineSettings(args.baud, data, parity, stop, framing, args.time_scale)
+    devices = []
+    for kind, addr, items in specs:
+        dev = KINDS[kind](addr, line, random.Random(f"{args.seed}:dev:{addr}"))
+        items = [it for it in items if not dev.option(*it)]
+        items.sort(key=lambda it: INIT_FIRST.index(it[0].upper())
+                   if it[0].upper() in INIT_FIRST else len(INIT_FIRST))
+        for name, value in items:
+            try:
+                dev.set_eng(name, value)
+            except KeyError as err:
+                raise ValueError(str(err).strip('"')) from None
+        if not dev.line_matches():
+            print(f"mbsim: warning: {kind}:{addr} settings do not match the line; it stays "
+                  "silent", file=sys.stderr)
+        devices.append(dev)
+    return line, devices
+
+
+class App:
+    """Bus + transport + control socket + the clock of the dynamics."""
+
+    def __init__(self, args, line, devices):
+        self.args = args
+        self.bus = Bus(line, devices, args.seed)
+        if args.tcp:
+            host, _, port = args.tcp.rpartition(":")
+            self.transport = TcpLine(self.bus, host or "127.0.0.1", int(port))
+            self.transport_kind = "tcp"
+        else:
+            self.transport = SerialLine(self.bus, device=args.serial, link=args.link,
+                                        pace=args.pace, seed=args.seed)
+            self.transport_kind = "serial"
+        self.control = Control(self)
+        self.ready_line = None
+        self.stopping = asyncio.Event()
+
+    def line_stats(self) -> dict:
+        return {"available": False,
+                "why": "line statistics come from tests/sim/ptyline (run it between master "
+                       "and simulator); the simulator's own counters are in 'stats'"}
+
+    async def ticker(self):
+        last = time.monotonic()
+        while True:
+            await asyncio.sleep(TICK_S)
+            now = time.monotonic()
+            self.bus.tick((now - last) * self.bus.line.time_scale)
+            last = now
+
+    async def scripted(self, req):
+        await asyncio.sleep(float(req.get("at_ms", 0)) / 1000.0)
+        try:
+            await self.control.execute(req)
+        except Exception as err:  # pylint: disable=broad-except
+            print(f"mbsim: --faults entry {req}: {err}", file=sys.stderr)
+
+    async def run(self) -> int:
+        loop = asyncio.get_running_loop()
+        for sig in (signal.SIGTERM, signal.SIGINT):
+            loop.add_signal_handler(sig, self.stopping.set)
+        script = []
+        if self.args.faults:
+            with open(self.args.faults, encoding="utf-8") as fh:
+                script = json.load(fh)
+            if not isinstance(script, list):
+                raise ValueError("--faults FILE must hold a JSON list")
+        if self.args.control:
+            await self.control.start(self.args.control)
+        self.ready_line = await self.transport.start()
+        tasks = [asyncio.ensure_future(self.ticker())]
+        for req in script:          # immediate entries are applied before the ready line
+            req = dict(req)
+            req.setdefault("op", "fault")
+            if float(req.get("at_ms", 0)) <= 0:
+                await self.control.execute(req)
+            else:
+                tasks.append(asyncio.ensure_future(self.scripted(req)))
+        print(self.ready_line, flush=True)
+        await self.stopping.wait()
+        for task in tasks:
+            task.cancel()
+        self.transport.close()
+        self.control.close()
+        return 0
+
+
+def main(argv=None) -> int:
+    args = parse_args(sys.argv[1:] if argv is None else argv)
+    try:
+        line, devices = build(args)
+        return asyncio.run(App(args, line, devices).run())
+    except (ValueError, OSError) as err:
+        print(f"mbsim: error: {err}", file=sys.stderr)
+        return 2

@@ -1,0 +1,314 @@
+"""Transports: a serial line (a pty we create, or a real serial device) and Modbus/TCP.
+
+The serial side is written on os/pyserial rather than on pymodbus's serial server because the
+line must (a) find frame ends by the t3.5 rule at the configured baud, (b) stay silent for bad
+frames and foreign slave ids without hunting inside them, (c) pace replies at the character
+time with a device turnaround, and (d) inject faults at byte level. pymodbus 3.8's server
+offers none of these hooks (its RTU framer even warns it does not support multidrop lines).
+"""
+from __future__ import annotations
+
+import asyncio
+import os
+import random
+import struct
+import termios
+import tty
+
+from . import frames
+
+LONG_GAP = 0.05   # an incomplete frame (by its function's length) is dropped after this silence
+BAUD_CONST = {b: getattr(termios, f"B{b}") for b in (2400, 4800, 9600, 19200, 38400, 57600,
+                                                     115200) if hasattr(termios, f"B{b}")}
+
+
+class SerialLine:
+    """One RS-485 line on a pty (`--pty`) or a serial device (`--serial`)."""
+
+    def __init__(self, bus, device: str | None = None, link: str | None = None,
+                 pace: bool = False, seed: int = 0):
+        self.bus = bus
+        self.line = bus.line
+        self.device = device            # None: create a pty
+        self.link = os.path.abspath(link) if link else None
+        self.pace = pace
+        self.rng = random.Random(f"{seed}:turnaround")
+        self.fd = self.slave_fd = None
+        self.ser = None
+        self.path = None
+        self.buf = bytearray()
+        self.timer = None
+        self.wlock = asyncio.Lock()
+        self.generation = 0             # replies scheduled before a reopen are not sent after it
+        self.counters = {"tx_overflow": 0}
+
+    # ----- open / close -----
+    async def start(self) -> str:
+        self._open()
+        return f"PTY {self.link or self.path}" if self.device is None else f"SERIAL {self.path}"
+
+    def _open(self):
+        if self.device is None:
+            self.fd, self.slave_fd = os.openpty()
+            # Raw mode before any master opens the pty: no echo, no line editing, no CR/LF
+            # translation. The slave end stays open here so the pty survives masters that
+            # close and reopen it (otherwise reads on our side fail with EIO).
+            tty.setraw(self.slave_fd)
+            attrs = termios.tcgetattr(self.slave_fd)
+            speed = BAUD_CONST.get(self.line.baud)
+            if speed is not None:
+                attrs[4] = attrs[5] = speed
+                termios.tcsetattr(self.slave_fd, termios.TCSANOW, attrs)
+            self.path = os.ttyname(self.slave_fd)
+            if self.link:
+                tmp = f"{self.link}.tmp{os.getpid()}"
+                if os.path.lexists(tmp):
+                    os.unlink(tmp)
+                os.symlink(self.path, tmp)
+                os.replace(tmp, self.link)
+        else:
+            import serial  # pyserial, pinned in requirements.txt
+            self.ser = serial.Serial(self.device, self.line.baud, bytesize=self.line.data_bits,
+                                     parity=self.line.parity, stopbits=self.line.stop_bits,
+                                     timeout=0)
+            self.fd = self.ser.fileno()
+            self.path = self.device
+        os.set_blocking(self.fd, False)
+        asyncio.get_running_loop().add_reader(self.fd, self._readable)
+
+    def close(self, remove_link: bool = True):
+        if self.fd is None:
+            return
+        asyncio.get_running_loop().remove_reader(self.fd)
+        if self.timer:
+            self.timer.cancel()
+        self.buf.clear()
+        self.generation += 1
+        if self.ser is not None:
+            self.ser.close()
+            self.ser = None
+        else:
+            os.close(self.fd)
+            os.close(self.slave_fd)
+        self.fd = self.slave_fd = None
+        if remove_link and self.link and os.path.islink(self.link):
+            os.unlink(self.link)
+
+    async def reopen(self, down_ms: float) -> str:
+        """Close the port (masters see it vanish), wait, open again (same --link path)."""
+        self.close(remove_link=False)
+        await asyncio.sleep(down_ms / 1000.0)
+        self._open()
+        return self.link or self.path
+
+    # ----- receive: frame end by length (pymodbus PDU sizes) or by t3.5 silence -----
+    def _readable(self):
+        try:
+            data = os.read(self.fd, 4096)
+        except (BlockingIOError, InterruptedError):
+            return
+        except OSError:
+            return                      # EIO while no master has the pty open
+        if not data:
+            return
+        self.buf += data
+        self._parse()
+
+    def _parse(self):
+        loop = asyncio.get_running_loop()
+        if self.line.framing == "ascii":
+            while True:
+                start = self.buf.find(b":")
+                if start < 0:
+                    if self.buf:
+                        self._garbage(bytes(self.buf))
+                    self.buf.clear()
+                    break
+                if start:
+                    self._garbage(bytes(self.buf[:start]))
+                    del self.buf[:start]
+                end = self.buf.find(b"\r\n")
+                if end < 0:
+                    break
+                frame = bytes(self.buf[:end + 2])
+                del self.buf[:end + 2]
+                self._frame(frame)
+        else:
+            while self.buf:
+                need = frames.rtu_request_length(bytes(self.buf))
+                if need is None or len(self.buf) < need:
+                    break
+                frame = bytes(self.buf[:need])
+                del self.buf[:need]
+                self._frame(frame)
+        if self.timer:
+            self.timer.cancel()
+            self.timer = None
+        if self.buf:
+            wait = self.line.t35 if self.line.framing != "ascii" else 1.0
+            self.timer = loop.call_later(wait, self._silence, loop.time())
+
+    def _silence(self, since: float):
+        """t3.5 of silence: the buffer is a whole frame unless its function says it is short."""
+        self.timer = None
+        if not self.buf:
+            return
+        loop = asyncio.get_running_loop()
+        need = frames.rtu_request_length(bytes(self.buf)) if self.line.framing != "ascii" else None
+        short = need is not None and len(self.buf) < need
+        # RTU-without-CRC: a frame that simply omits the two CRC bytes is accepted too.
+        if short and self.line.framing == "nocrc" and len(self.buf) == need - 2:
+            frame = bytes(self.buf) + b"\0\0"
+            self.buf.clear()
+            self._frame(frame)
+            return
+        if short and loop.time() - since < LONG_GAP:
+            # A master's write split by the scheduler: wait a little longer than t3.5.
+            self.timer = loop.call_later(LONG_GAP - (loop.time() - since), self._silence, since)
+            return
+        frame = bytes(self.buf)
+        self.buf.clear()
+        if short or self.line.framing == "ascii":
+            self._garbage(frame)
+        else:
+            self._frame(frame)
+
+    def _garbage(self, data: bytes):
+        self.bus.record("rx", data, "garbage")
+        self.bus.bad_frame()
+
+    def _frame(self, frame: bytes):
+        try:
+            if self.line.framing == "ascii":
+                addr, pdu = frames.decode_ascii(frame)
+            else:
+                addr, pdu = frames.decode_rtu(frame, check_crc=self.line.framing == "rtu")
+        except frames.BadFrame as err:
+            self.bus.record("rx", frame, str(err))
+            self.bus.bad_frame()
+            return
+        self.bus.record("rx", frame)
+        reply = self.bus.request(addr, pdu)
+        if reply is None:
+            return
+        framing = self.line.framing
+        out = frames.encode(framing, reply.addr, reply.pdu)
+        delay, info = 0.0, ""
+        if reply.fault is not None:
+            out, delay = reply.queue.shape(reply.fault, out, framing,
+                                      lambda a: frames.encode(framing, a, reply.pdu),
+                                      lambda f: frames.corrupt_check(framing, f))
+            info = reply.fault.kind
+        if out is None:
+            self.bus.record("tx", b"", "drop")
+            return
+        asyncio.ensure_future(self._send(out, delay, info, self.generation))
+
+    # ----- transmit: whole frame, or paced at the character time with a turnaround -----
+    async def _send(self, data: bytes, delay: float, info: str, generation: int):
+        if self.pace:
+            delay += self.line.t35 + self.rng.uniform(0.001, 0.010)   # 1..10 ms turnaround
+        if delay > 0:
+            await asyncio.sleep(delay)
+        async with self.wlock:
+            if generation != self.generation or self.fd is None:
+                return
+            self.bus.record("tx", data, info)
+            if not self.pace:
+                self._write(data)
+                return
+            loop = asyncio.get_running_loop()
+            start, sent, ct = loop.time(), 0, self.line.char_time
+            while sent < len(data):
+                due = min(len(data), int((loop.time() - start) / ct) + 1)
+                if due > sent:
+                    if not self._write(data[sent:due]):
+                        return
+                    sent = due
+                if sent < len(data):
+                    await asyncio.sleep(max(0.0, start + sent * ct - loop.time()))
+                if generation != self.generation or self.fd is None:
+                    return
+
+    def _write(self, data: bytes) -> bool:
+        view = memoryview(data)
+        while view:
+            try:
+                n = os.write(self.fd, view)
+            except (BlockingIOError, OSError):
+                self.counters["tx_overflow"] += 1     # nobody reads the pty: bytes are lost
+                return False
+            view = view[n:]
+        return True
+
+
+class TcpLine:
+    """Modbus/TCP server on 127.0.0.1: MBAP unit id = slave address (MBAP by hand: 7 bytes)."""
+
+    def __init__(self, bus, host: str, port: int):
+        if host not in ("127.0.0.1", "localhost", "::1"):
+            raise ValueError("the simulator listens on 127.0.0.1 only")
+        self.bus, self.host, self.port = bus, host, port
+        self.server = None
+        self.writers = set()
+        self.counters = {}
+
+    async def start(self) -> str:
+        self.server = await asyncio.start_server(self._client, self.host, self.port)
+        self.port = self.server.sockets[0].getsockname()[1]
+        return f"TCP {self.host}:{self.port}"
+
+    def close(self, remove_link: bool = True):
+        if self.server:
+            self.server.close()
+            self.server = None
+        for writer in list(self.writers):
+            writer.close()
+        self.writers.clear()
+
+    async def reopen(self, down_ms: float) -> str:
+        self.close()
+        await asyncio.sleep(down_ms / 1000.0)
+        await self.start()
+        return f"{self.host}:{self.port}"
+
+    async def _client(self, reader, writer):
+        self.writers.add(writer)
+        try:
+            while True:
+                head = await reader.readexactly(7)
+                tid, proto, length, unit = struct.unpack(">HHHB", head)
+                if length < 2 or length > 254:
+                    self.bus.record("rx", head, "bad MBAP length")
+                    break
+                pdu = await reader.readexactly(length - 1)
+                if proto != 0:
+                    self.bus.record("rx", head + pdu, "bad protocol id")
+                    continue
+                self.bus.record("rx", head + pdu)
+                reply = self.bus.request(unit, pdu)
+                if reply is None:
+                    continue
+                out, delay, info = frames.mbap(tid, reply.addr, reply.pdu), 0.0, ""
+                if reply.fault is not None:
+                    out, delay = reply.queue.shape(reply.fault, out, "tcp",
+                                             lambda a: frames.mbap(tid, a, reply.pdu),
+                                             lambda f: f)
+                    info = reply.fault.kind
+                if out is None:
+                    self.bus.record("tx", b"", "drop")
+                    continue
+                asyncio.ensure_future(self._send(writer, out, delay, info))
+        except (asyncio.IncompleteReadError, ConnectionError):
+            pass
+        finally:
+            self.writers.discard(writer)
+            writer.close()
+
+    async def _send(self, writer, data, delay, info):
+        if delay:
+            await asyncio.sleep(delay)
+        if writer.is_closing():
+            return
+        self.bus.record("tx", data, info)
+        writer.write(data)

@@ -1,0 +1,45 @@
+/* side.h: one end of the line, a pty whose slave path a peer opens. */
+#ifndef PL_SIDE_H
+#define PL_SIDE_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#define PL_SIDE_OUT_MAX 65536 /* bytes waiting for a slow reader before overrun */
+
+typedef struct {
+    char name;            /* 'M' or 'S' */
+    int fd;               /* pty master, non-blocking */
+    char path[64];        /* slave path the peer opens */
+    const char *link;     /* optional symlink to path, removed by pl_side_close */
+    int up;               /* a peer has the slave open */
+    uint64_t opens;       /* times a peer was seen to open it */
+    int64_t next_check_ns;
+    size_t out_len;
+    uint8_t out[PL_SIDE_OUT_MAX];
+} pl_side;
+
+/* Creates the pty (raw on both ends) and the optional symlink.  0, or -1 with
+ * errno and a message on stderr. */
+int pl_side_open(pl_side *s, char name, const char *link);
+
+/* Closes the pty and removes the symlink if it still points to it. */
+void pl_side_close(pl_side *s);
+
+/* While the side is down, looks (at most every 10 ms unless forced) whether a
+ * peer opened the slave; returns 1 if it just came up. */
+int pl_side_check_up(pl_side *s, int64_t now_ns, int force);
+
+/* Reads what the peer wrote: > 0 bytes, 0 nothing now, -1 the peer closed (the
+ * side is then down). */
+long pl_side_read(pl_side *s, uint8_t *buf, size_t max);
+
+/* Queues n bytes for the peer; returns how many did not fit or cannot reach it
+ * (down side, overrun): those are lost, as on a real line. */
+size_t pl_side_put(pl_side *s, const uint8_t *data, size_t n);
+
+/* Writes queued bytes as far as the pty takes them; returns how many were lost
+ * because the peer closed meanwhile. */
+size_t pl_side_flush(pl_side *s);
+
+#endif

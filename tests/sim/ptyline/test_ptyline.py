@@ -1,0 +1,412 @@
+"""mbfb-ptyline on real ptys (run by ctest with PTYLINE_BIN set to the program).
+
+Timing checks use lower bounds only, and low baud rates where a gap has to fall
+on one side of a threshold, so that a scheduling hiccup of tens of ms on a busy
+machine cannot flip a result.  Every process started here is killed by pid.
+"""
+import json
+import os
+import re
+import select
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+BIN = os.environ.get("PTYLINE_BIN", os.path.join(HERE, "../../../build/tests/sim/ptyline/mbfb-ptyline"))
+
+
+class Line:
+    """A running mbfb-ptyline; .m and .s are the pty paths it printed."""
+
+    def __init__(self, tmp_path, *args):
+        self.stats_path = str(tmp_path / "line.json")
+        self.log_path = str(tmp_path / "line.log")
+        self.proc = subprocess.Popen([BIN, "--stats", self.stats_path, "--log", self.log_path, *args],
+                                     stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        ready = [self.proc.stdout.readline().split(), self.proc.stdout.readline().split()]
+        assert [w[0] for w in ready] == ["M", "S"], (ready, self.proc.stderr.read())
+        self.m, self.s = ready[0][1], ready[1][1]
+        self.fds = []
+
+    def open(self, path):
+        fd = os.open(path, os.O_RDWR | os.O_NOCTTY)
+        self.fds.append(fd)
+        return fd
+
+    def close(self, fd):
+        self.fds.remove(fd)
+        os.close(fd)
+
+    def stats(self):
+        """Asks for the stats with SIGUSR1 and returns them."""
+        if os.path.exists(self.stats_path):
+            os.unlink(self.stats_path)
+        self.proc.send_signal(signal.SIGUSR1)
+        end = time.monotonic() + 5
+        while not os.path.exists(self.stats_path):
+            assert time.monotonic() < end, "no stats file after SIGUSR1"
+            time.sleep(0.01)
+        with open(self.stats_path) as f:
+            return json.load(f)
+
+    def log(self):
+        """Frames logged so far: [(t_us, dir, hex)]."""
+        self.proc.send_signal(signal.SIGUSR1)  # flushes the log too
+        time.sleep(0.1)
+        with open(self.log_path) as f:
+            return [(int(t), d, h.strip()) for t, d, h in
+                    (line.rstrip("\n").split(" ", 2) + [""] for line in f if line.strip())]
+
+    def stop(self, sig=signal.SIGTERM):
+        """Signals the program and returns its exit code."""
+        for fd in self.fds:
+            os.close(fd)
+        self.fds = []
+        if self.proc.poll() is None:
+            self.proc.send_signal(sig)
+        return self.proc.wait(timeout=10)
+
+    def kill(self):
+        for fd in self.fds:
+            os.close(fd)
+        self.fds = []
+        if self.proc.poll() is None:
+            os.kill(self.proc.pid, signal.SIGKILL)
+            self.proc.wait()
+
+
+@pytest.fixture
+def line(tmp_path):
+    """line(*args) starts mbfb-ptyline; every one started is killed by pid afterwards."""
+    if not os.access(BIN, os.X_OK):
+        pytest.fail(f"mbfb-ptyline not built: {BIN}")
+    started = []
+
+    def start(*args):
+        started.append(Line(tmp_path, *args))
+        return started[-1]
+    yield start
+    for ln in started:
+        ln.kill()
+
+
+def write_all(fd, data):
+    while data:
+        data = data[os.write(fd, data):]
+
+
+def read_n(fd, n, timeout=10.0):
+    """Reads until n bytes came or the timeout passed."""
+    got, end = b"", time.monotonic() + timeout
+    while len(got) < n:
+        left = end - time.monotonic()
+        if left <= 0:
+            break
+        if select.select([fd], [], [], left)[0]:
+            got += os.read(fd, n - len(got))
+    return got
+
+
+def nothing_comes(fd, wait):
+    return not select.select([fd], [], [], wait)[0]
+
+
+def char_s(baud, bits):
+    return bits / baud
+
+
+def exchange(m, s, req, rep, gap_s=None):
+    """M sends req, S reads it all and answers rep, M reads it all; then M stays
+    silent for gap_s (the silence before the next request)."""
+    write_all(m, req)
+    assert read_n(s, len(req)) == req
+    write_all(s, rep)
+    assert read_n(m, len(rep)) == rep
+    if gap_s is not None:
+        time.sleep(gap_s)
+
+
+@pytest.mark.parametrize("args", [["--baud", "115200"], ["--no-pace"]], ids=["paced", "no-pace"])
+def test_relay_is_transparent_both_ways(line, args):
+    ln = line(*args)
+    m, s = ln.open(ln.m), ln.open(ln.s)
+    data = bytes(range(256)) * 2  # CR, LF, NUL, ^C, XON/XOFF, 0xFF...: raw ptys pass all
+    write_all(m, data)
+    assert read_n(s, len(data)) == data
+    write_all(s, data[::-1])
+    assert read_n(m, len(data)) == data[::-1]
+    assert nothing_comes(m, 0.1) and nothing_comes(s, 0.1)
+    st = ln.stats()
+    assert st["paced"] is (args != ["--no-pace"])
+    assert st["m2s"]["bytes"] == st["s2m"]["bytes"] == 512
+    assert st["total"]["bytes"] == 1024 and st["total"]["dropped_bytes"] == 0
+    assert ln.stop() == 0
+
+
+@pytest.mark.parametrize("fmt,bits", [("8N2", 11), ("8N1", 10), ("7E1", 10), ("8E1", 11)])
+def test_pacing_lower_bound(line, fmt, bits):
+    ln = line("--baud", "9600", "--format", fmt)
+    m, s = ln.open(ln.m), ln.open(ln.s)
+    n = 120
+    t0 = time.monotonic()
+    write_all(m, bytes(n))
+    first = read_n(s, 1)
+    t_first = time.monotonic() - t0
+    rest = read_n(s, n - 1)
+    elapsed = time.monotonic() - t0
+    assert len(first + rest) == n
+    assert t_first >= bits / 9600
+    assert elapsed >= n * bits / 9600  # the line never goes faster than the baud rate
+    st = ln.stats()
+    assert st["char_bits"] == bits
+    assert st["char_us"] == pytest.approx(bits / 9600 * 1e6, abs=0.01)
+    assert st["m2s"]["busy_us"] == pytest.approx(n * st["char_us"], abs=1)
+    assert st["m2s"]["frames"] == 1 and st["m2s"]["intra_gaps_over_1_5"] == 0
+    assert 0 < st["m2s"]["utilisation"] <= 1
+
+
+def test_frames_and_gaps_request_reply(line):
+    """600 baud 8N2: a character is 18.3 ms, t3.5 64.2 ms, 44 bits 73.3 ms."""
+    ln = line("--baud", "600")
+    m, s = ln.open(ln.m), ln.open(ln.s)
+    c = char_s(600, 11)
+    req, rep = bytes.fromhex("01 03 00 00 00 01 84 0A"), bytes.fromhex("01 03 02 00 64 B9 AF")
+    exchange(m, s, req, rep, gap_s=1 * c)  # next request 1 character after the reply
+    exchange(m, s, req, rep, gap_s=5 * c)  # 5 characters: a correct master
+    exchange(m, s, req, rep)
+    st = ln.stats()
+    assert st["m2s"]["frames"] == 3 and st["s2m"]["frames"] == 3
+    assert st["m2s"]["bytes"] == 24 and st["s2m"]["bytes"] == 21
+    rq = st["requests"]
+    assert rq["count"] == 2
+    assert rq["short_3_5"] == 1 and rq["short_44bit"] == 1
+    assert c * 1e6 <= rq["short_min_us"] < st["t35_us"]
+    assert rq["gap_min_us"] == rq["short_min_us"] and rq["gap_max_us"] >= 5 * c * 1e6
+    assert st["reply_latency"]["count"] == 3 and st["reply_latency"]["min_us"] >= 0
+    assert st["total"]["collisions"] == 0
+    log = ln.log()
+    assert [(d, h) for _, d, h in log] == [("M>S", req.hex(" ").upper()),
+                                           ("S>M", rep.hex(" ").upper())] * 3
+    assert all(b[0] > a[0] for a, b in zip(log, log[1:]))
+
+
+def test_44_bit_rule_counted_apart_from_3_5_characters(line):
+    """300 baud 5N1 (7-bit characters): 3.5 characters = 81.7 ms, 44 bits = 146.7 ms;
+    a 90 ms silence is enough for t3.5 but not for SetPro's 44 bit times."""
+    ln = line("--baud", "300", "--format", "5N1")
+    m, s = ln.open(ln.m), ln.open(ln.s)
+    exchange(m, s, b"\x01\x02", b"\x03", gap_s=0.090)
+    exchange(m, s, b"\x01\x02", b"\x03")
+    rq = ln.stats()["requests"]
+    assert rq["count"] == 1 and rq["short_3_5"] == 0 and rq["short_44bit"] == 1
+    assert rq["short_min_us"] is None and rq["gap_min_us"] >= 90000
+
+
+def test_one_direction_frames_and_intra_frame_gap(line):
+    """300 baud 8N2: a character is 36.7 ms, 1.5 = 55 ms, 3.5 = 128 ms."""
+    ln = line("--baud", "300")
+    m, s = ln.open(ln.m), ln.open(ln.s)
+    write_all(m, b"\xAA\x55")
+    read_n(s, 2)
+    time.sleep(0.070)  # 1.9 characters: same frame, but a receiver may drop it
+    write_all(m, b"\xAA\x55")
+    read_n(s, 2)
+    time.sleep(0.300)  # 8 characters: a new frame
+    write_all(m, b"\xAA\x55")
+    read_n(s, 2)
+    st = ln.stats()
+    assert st["m2s"]["frames"] == 2 and st["m2s"]["bytes"] == 6
+    assert st["m2s"]["intra_gaps_over_1_5"] == 1
+    assert st["requests"]["count"] == 1 and st["requests"]["short_3_5"] == 0
+
+
+def test_collision_corrupts_both_ends(line):
+    """1200 baud: S starts talking while M's 20-byte frame is on the line."""
+    ln = line("--baud", "1200")
+    m, s = ln.open(ln.m), ln.open(ln.s)
+    write_all(m, b"\xF0" * 20)
+    assert read_n(s, 3) == b"\xF0" * 3
+    write_all(s, b"\x3C\x3C")  # 17 bytes (150 ms) of M still to come
+    at_s = read_n(s, 17)
+    at_m = read_n(m, 2)
+    assert b"\x30" in at_s and at_m == b"\x30\x30"  # wired-AND of 0xF0 and 0x3C
+    st = ln.stats()
+    assert st["s2m"]["collisions"] == 1 and st["m2s"]["collisions"] == 0
+    assert st["s2m"]["collided_bytes"] == 2 and st["m2s"]["collided_bytes"] >= 2
+    assert st["total"]["busy_us"] < st["m2s"]["busy_us"] + st["s2m"]["busy_us"]
+    assert any(d == "M>S*" for _, d, _ in ln.log())
+
+
+def test_turnaround_delays_each_reply(line):
+    ln = line("--baud", "9600", "--turnaround-ms", "5:8", "--seed", "3")
+    m, s = ln.open(ln.m), ln.open(ln.s)
+    for _ in range(5):
+        write_all(m, b"\x01\x03")
+        read_n(s, 2)
+        t = time.monotonic()
+        write_all(s, b"\x01\x83\x02")  # the "device" answers at once
+        assert read_n(m, 3) == b"\x01\x83\x02"
+        assert time.monotonic() - t >= 0.005 + 3 * 11 / 9600
+        time.sleep(0.02)
+    st = ln.stats()
+    lat = st["reply_latency"]
+    assert st["turnaround_ms"] == [5, 8] and st["seed"] == 3
+    assert lat["count"] == 5 and lat["min_us"] >= 5000 and lat["max_us"] >= lat["min_us"]
+
+
+def cpu_seconds(pid):
+    with open(f"/proc/{pid}/stat") as f:
+        fields = f.read().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def test_peer_close_and_reopen(line):
+    ln = line("--baud", "19200")
+    m, s = ln.open(ln.m), ln.open(ln.s)
+    exchange(m, s, b"\x11\x22", b"\x33")
+    ln.close(s)
+    time.sleep(0.05)
+    write_all(m, b"\xDE\xAD")  # nobody listens: lost, as with an unplugged device
+    cpu0, t0 = cpu_seconds(ln.proc.pid), time.monotonic()
+    time.sleep(1.0)
+    busy = (cpu_seconds(ln.proc.pid) - cpu0) / (time.monotonic() - t0)
+    assert busy < 0.5, f"spinning while the S side is closed ({busy:.0%} CPU)"
+    st = ln.stats()
+    assert st["m2s"]["dropped_bytes"] == 2 and st["sides"]["s"]["open"] is False
+    s = ln.open(ln.s)
+    write_all(m, b"\xBE\xEF")  # straight after the reopen
+    assert read_n(s, 2) == b"\xBE\xEF"  # not the stale DE AD
+    assert nothing_comes(s, 0.1)
+    ln.close(m)  # and the master side too
+    time.sleep(0.05)
+    m = ln.open(ln.m)
+    exchange(m, s, b"\x44", b"\x55\x66")
+    st = ln.stats()
+    assert st["sides"]["s"]["opens"] == 2 and st["sides"]["m"]["opens"] == 2
+    assert st["sides"]["m"]["open"] is True and st["m2s"]["dropped_bytes"] == 2
+    assert ln.stop() == 0
+
+
+def documented_keys():
+    """Keys of the README's stats table, with <dir> and <side> expanded."""
+    with open(os.path.join(HERE, "README.md")) as f:
+        keys = re.findall(r"^\| `([a-z0-9_.<>]+)` \|", f.read(), re.M)
+    out = set()
+    for k in keys:
+        for d in ("m2s", "s2m", "total"):
+            for sd in ("m", "s"):
+                out.add(k.replace("<dir>", d).replace("<side>", sd))
+    return out
+
+
+def flat_keys(obj, prefix=""):
+    if not isinstance(obj, dict):
+        return {prefix[:-1]}
+    return set().union(*(flat_keys(v, prefix + k + ".") for k, v in obj.items()))
+
+
+def test_stats_file_keys_usr1_and_sigterm(line, tmp_path):
+    ln = line("--baud", "38400", "--format", "8E1")
+    m, s = ln.open(ln.m), ln.open(ln.s)
+    exchange(m, s, b"\x01" * 8, b"\x02" * 9)
+    st = ln.stats()
+    documented = documented_keys()
+    assert len(documented) > 40
+    assert flat_keys(st) == documented
+    assert st["baud"] == 38400 and st["format"] == "8E1" and st["char_bits"] == 11
+    assert st["sides"]["m"]["path"] == ln.m and st["sides"]["s"]["path"] == ln.s
+    assert ln.stop(signal.SIGTERM) == 0
+    with open(ln.stats_path) as f:
+        final = json.load(f)  # written again at exit
+    assert final["elapsed_us"] > st["elapsed_us"] and final["m2s"]["bytes"] == 8
+    assert sorted(os.listdir(tmp_path)) == ["line.json", "line.log"]  # no temp file left
+
+
+def test_links_and_sigint(line, tmp_path):
+    lm, ls = str(tmp_path / "m-link"), str(tmp_path / "s-link")
+    os.symlink("/nonexistent", lm)  # an old link is replaced
+    ln = line("--link-m", lm, "--link-s", ls)
+    assert os.readlink(lm) == ln.m and os.readlink(ls) == ln.s
+    m, s = ln.open(lm), ln.open(ls)
+    exchange(m, s, b"\x05", b"\x06")
+    assert ln.stop(signal.SIGINT) == 0
+    assert not os.path.lexists(lm) and not os.path.lexists(ls)
+
+
+def test_link_never_clobbers_a_file(tmp_path):
+    victim = tmp_path / "precious"
+    victim.write_text("keep")
+    p = subprocess.run([BIN, "--link-s", str(victim)], capture_output=True, text=True, timeout=10)
+    assert p.returncode != 0 and "precious" in p.stderr and p.stdout == ""
+    assert victim.read_text() == "keep"
+
+
+@pytest.mark.parametrize("args", [["--format", "9N1"], ["--format", "8X1"], ["--format", "8N3"],
+                                  ["--baud", "0"], ["--baud", "96k"], ["--turnaround-ms", "5"],
+                                  ["--turnaround-ms", "9:2"], ["--seed", "-1"], ["extra"],
+                                  ["--bogus"]])
+def test_bad_options_are_refused(args):
+    p = subprocess.run([BIN, *args], capture_output=True, text=True, timeout=10)
+    assert p.returncode == 2 and p.stdout == "" and "usage" in p.stderr
+
+
+def crc16(data):
+    c = 0xFFFF
+    for b in data:
+        c ^= b
+        for _ in range(8):
+            c = (c >> 1) ^ 0xA001 if c & 1 else c >> 1
+    return data + bytes([c & 0xFF, c >> 8])
+
+
+PYMODBUS_SLAVE = """
+import sys
+from pymodbus.datastore import ModbusSequentialDataBlock, ModbusServerContext, ModbusSlaveContext
+from pymodbus.framer import FramerType
+from pymodbus.server import StartSerialServer
+store = ModbusSlaveContext(hr=ModbusSequentialDataBlock(0, [1234] * 100))
+StartSerialServer(context=ModbusServerContext(slaves={1: store}, single=False),
+                  framer=FramerType.RTU, port=sys.argv[1], baudrate=9600, bytesize=8,
+                  parity="N", stopbits=2)
+"""
+
+
+def test_independent_peers_mbpoll_and_pymodbus(line):
+    """mbpoll (libmodbus) on the M side, a pymodbus RTU slave on the S side."""
+    mbpoll = "/usr/bin/mbpoll"
+    if not os.access(mbpoll, os.X_OK):
+        if os.environ.get("MBFB_REQUIRE_TOOLCHAIN") == "1":
+            pytest.fail("mbpoll is not installed (.ci/apt-packages.txt)")
+        pytest.skip("mbpoll is not installed")
+    ln = line("--baud", "9600", "--turnaround-ms", "2:4")
+    slave = subprocess.Popen([sys.executable, "-c", PYMODBUS_SLAVE, ln.s],
+                             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    try:
+        end = time.monotonic() + 20
+        while not ln.stats()["sides"]["s"]["open"]:
+            assert slave.poll() is None, slave.stderr.read()
+            assert time.monotonic() < end, "pymodbus slave did not open the S side"
+            time.sleep(0.1)
+        time.sleep(0.3)
+        for _ in range(3):
+            p = subprocess.run([mbpoll, "-m", "rtu", "-b", "9600", "-d", "8", "-P", "none",
+                                "-s", "2", "-a", "1", "-0", "-r", "0", "-c", "2", "-1", "-o", "1",
+                                ln.m], capture_output=True, text=True, timeout=20)
+            assert p.returncode == 0, p.stdout + p.stderr
+            assert re.findall(r"^\[\d+\]:\s+(\d+)", p.stdout, re.M) == ["1234", "1234"]
+        st = ln.stats()
+        log = [(d, h) for _, d, h in ln.log()]
+    finally:
+        slave.kill()
+        slave.wait()
+    req = crc16(bytes.fromhex("010300000002")).hex(" ").upper()
+    rep = crc16(bytes.fromhex("01030404D204D2")).hex(" ").upper()
+    assert log == [("M>S", req), ("S>M", rep)] * 3
+    assert st["m2s"]["frames"] == 3 and st["s2m"]["frames"] == 3
+    assert st["requests"]["short_3_5"] == 0  # a new mbpoll process each time: long gaps
+    assert st["reply_latency"]["count"] == 3 and st["reply_latency"]["min_us"] >= 2000
+    assert st["total"]["collisions"] == 0 and st["total"]["dropped_bytes"] == 0
