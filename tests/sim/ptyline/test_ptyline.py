@@ -57,9 +57,12 @@ class Line:
         """Frames logged so far: [(t_us, dir, hex)]."""
         self.proc.send_signal(signal.SIGUSR1)  # flushes the log too
         time.sleep(0.1)
+        frames = []
         with open(self.log_path) as f:
-            return [(int(t), d, h.strip()) for t, d, h in
-                    (line.rstrip("\n").split(" ", 2) + [""] for line in f if line.strip())]
+            for text in f:
+                t, d, h = (text.strip().split(" ", 2) + [""])[:3]
+                frames.append((int(t), d, h))
+        return frames
 
     def stop(self, sig=signal.SIGTERM):
         """Signals the program and returns its exit code."""
