@@ -1,0 +1,26 @@
+/* fbtest.h - host functions the ST test-support blocks (fbtest.st) call from their pragmas.
+ * Implemented in fb_host.cpp; force-included into the iec2c output of every test program. */
+#ifndef FBTEST_H
+#define FBTEST_H
+#include <stdint.h>
+
+/** Record a failed check: prints "FAIL scan N: msg"; the host exits 1 after this scan. */
+void fbt_fail(const uint8_t *msg, int len);
+/** Count a passed check. */
+void fbt_pass(void);
+/** Print a note with the scan number. */
+void fbt_note(const uint8_t *msg, int len);
+/** The test program finished: the host exits after this scan (0 if nothing failed). */
+void fbt_done(void);
+/** Current scan number (0-based). */
+long fbt_scan(void);
+/** Copy environment variable `name` into buf (at most max bytes); returns its length or -1. */
+int fbt_getenv(const char *name, uint8_t *buf, int max);
+/** One simulator control request (JSON line) over MBFB_SIM_CONTROL; blocks (tests only).
+ *  Copies up to max bytes of the reply into buf and returns its full length, or -1. Also
+ *  gives: ok (reply has "ok": true), raw (value of "raw" if present, else -1), frames
+ *  (number of frames in a "log" reply) and matches (occurrences of `match` in the reply,
+ *  e.g. '"hex": "01 06' counts FC06 frames to slave 1 in a log). */
+int fbt_sim(const uint8_t *req, int len, uint8_t *buf, int max, int *ok, long *raw, long *frames,
+            const uint8_t *match, int match_len, long *matches);
+#endif

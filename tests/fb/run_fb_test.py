@@ -1,0 +1,79 @@
+"""Run one ST function-block test program against the device simulator.
+
+    run_fb_test.py --exe BUILD/fb_<name> --st tests/fb/t_<name>.st
+    run_fb_test.py --skip "reason"      (toolchain missing: exit 77, or 1 in CI)
+
+The test program's header says which simulator it needs, in one comment line:
+    (*@SIM format=8N2 baud=9600 time-scale=0.001 device=mvd94:1:SV=100.0,DP=1 device=... *)
+The simulator runs on a pty reached through a stable --link path (reopen_port keeps it);
+the program gets it in MBFB_TEST_PORT and the control socket in MBFB_SIM_CONTROL. The
+simulator is stopped by pid whatever happens (simctl.Simulator context manager).
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import subprocess
+import sys
+import tempfile
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, os.path.join(os.path.dirname(HERE), "sim"))
+
+SKIP = 77
+
+
+def sim_spec(st_path: str) -> dict:
+    with open(st_path, encoding="utf-8") as fh:
+        text = fh.read()
+    m = re.search(r"\(\*@SIM(.*?)\*\)", text, re.S)
+    if not m:
+        raise SystemExit(f"{st_path}: no (*@SIM ... *) header")
+    spec = {"devices": [], "format": "8N2", "baud": 9600, "time-scale": 1.0}
+    for item in m.group(1).split():
+        key, _, value = item.partition("=")
+        if key == "device":
+            spec["devices"].append(value)
+        elif key in ("format", "baud", "time-scale"):
+            spec[key] = value
+        else:
+            raise SystemExit(f"{st_path}: unknown @SIM key {key!r}")
+    return spec
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--exe")
+    ap.add_argument("--st")
+    ap.add_argument("--skip")
+    ap.add_argument("--timeout", type=float, default=400.0)
+    args = ap.parse_args()
+    if args.skip is not None:
+        print(f"SKIP: {args.skip}")
+        if os.environ.get("MBFB_REQUIRE_TOOLCHAIN") == "1":
+            print("MBFB_REQUIRE_TOOLCHAIN=1: a missing toolchain is a failure")
+            return 1
+        return SKIP
+    from simctl import Simulator  # tests/sim/simctl.py
+
+    spec = sim_spec(args.st)
+    tmp = tempfile.mkdtemp(prefix="fbtest-")
+    link = os.path.join(tmp, "ttySIM")
+    with Simulator(spec["devices"], baud=int(spec["baud"]), fmt=spec["format"],
+                   time_scale=float(spec["time-scale"]), link=link) as sim:
+        env = dict(os.environ, MBFB_TEST_PORT=link, MBFB_SIM_CONTROL=sim.control_path)
+        try:
+            proc = subprocess.run([args.exe], env=env, timeout=args.timeout)
+            rc = proc.returncode
+        except subprocess.TimeoutExpired:
+            print(f"FAIL: {args.exe} still running after {args.timeout} s (killed)")
+            rc = 1
+        if rc != 0:
+            print("--- simulator stderr (tail) ---")
+            print(sim.stderr()[-3000:])
+    return 0 if rc == 0 else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
