@@ -55,21 +55,22 @@ done < "$dist/MANIFEST"
 if [ ! -f "$old" ]; then cp "$tmp/manifest" "$old"; chmod 644 "$old"; changed=1
 elif replace_if_changed "$old" "$tmp/manifest"; then changed=1; fi
 
-# standard_FB.txt: include our library just before "{enable code generation}", i.e. among the
-# library POUs for which matiec emits no C (their C is mbfb_blocks.h).
+# standard_FB.txt: include our library right after "{enable code generation}", so matiec
+# generates our blocks' C into each program (see mkdist.sh for why not under "disable").
 f=$oplc/webserver/lib/standard_FB.txt
 strip_block "$f" | awk -v b="$MARK_BEGIN" -v e="$MARK_END" '
+    { print }
     /^{enable code generation}/ && !done {
-        print "(* " b " *)"; print "{#include \"mbfb.txt\" }"; print "(* " e " *)"; done = 1 }
-    { print }' > "$tmp/std"
+        print "(* " b " *)"; print "{#include \"mbfb.txt\" }"; print "(* " e " *)"; done = 1 }' > "$tmp/std"
 if replace_if_changed "$f" "$tmp/std"; then changed=1; fi
 
-# c_blocks.h (included at the end of iec_std_FB.h by every program): include our blocks' C.
+# c_blocks.h (included at the end of iec_std_FB.h by every program): declare the shims for the
+# blocks' pragmas.
 f=$oplc/webserver/core/c_blocks.h
 strip_block "$f" > "$tmp/cb"
 eol=
 if [ -s "$tmp/cb" ] && [ -n "$(tail -c1 "$tmp/cb")" ]; then eol=' [eol]'; echo >> "$tmp/cb"; fi
-printf '/* %s%s */\n#include "mbfb_blocks.h"\n/* %s */\n' "$MARK_BEGIN" "$eol" "$MARK_END" >> "$tmp/cb"
+printf '/* %s%s */\n#include "mbfb.h"\n/* %s */\n' "$MARK_BEGIN" "$eol" "$MARK_END" >> "$tmp/cb"
 if replace_if_changed "$f" "$tmp/cb"; then changed=1; fi
 
 if [ $changed = 1 ]; then say "installed into $oplc"; else say "already installed in $oplc (nothing changed)"; fi

@@ -34,7 +34,7 @@ echo
 echo "(* ---- user program: $(basename "$1") ---- *)"
 cat "$1"
 echo
-grep -v '^webserver/core/mbfb_blocks.h$' "$dist/MANIFEST" | grep '^webserver/core/' | while read -r f; do
+grep '^webserver/core/' "$dist/MANIFEST" | while read -r f; do
     file_lines "$(basename "$f")" "$dist/$f"
 done
 echo '#include "mbfb.h"' | file_lines c_blocks.h -

@@ -7,8 +7,9 @@ sys.path.insert(0, os.path.dirname(__file__))
 import oplc  # noqa: E402
 
 
-@pytest.fixture
+@pytest.fixture(scope="session")
 def dist():
+    """The library tree the build generated (plc_lib/CMakeLists.txt)."""
     d = os.environ.get("MBFB_DIST", "")
     assert os.path.isfile(os.path.join(d, "MANIFEST")), f"no generated library at {d!r}"
     return d

@@ -154,3 +154,21 @@ def wait_port(port, timeout):
             if time.monotonic() > deadline:
                 raise RuntimeError(f"nothing listens on 127.0.0.1:{port}")
             time.sleep(0.1)
+
+
+EXAMPLE_BUS = "/tmp/heat_treat_bus"  # BusPort of examples/heat_treat_*; tests point it elsewhere
+
+
+def retarget(src, dst, bus_port):
+    """Copy an example program to dst with its BusPort set to bus_port (the only change)."""
+    with open(src) as f:
+        text = f.read()
+    old = f"'{EXAMPLE_BUS}'"
+    assert text.count(old) == 1, f"{src}: expected one BusPort initialiser {old}"
+    with open(dst, "w") as f:
+        f.write(text.replace(old, f"'{bus_port}'"))
+    return dst
+
+
+# The example's devices on the simulated bus (examples/heat_treat_st/README.md).
+EXAMPLE_DEVICES = ["fdc100:1:SP1=120.0", "mvd94:2:SV=100.0,DP=1", "mts9:3:rate=5"]

@@ -52,8 +52,8 @@ def test_install_changes_only_ours_and_uninstall_restores(scratch, dist):
         assert rest == originals[f], f"{f}: changed outside the marker block"
         assert len(block) == 3, f"{f}: marker block is {block}"
     std = open(os.path.join(root, "webserver/lib/standard_FB.txt")).read()
-    # Our include sits where matiec generates no C (the C comes from mbfb_blocks.h).
-    assert std.index('{#include "mbfb.txt" }') < std.index("{enable code generation}")
+    # After "enable code generation": matiec generates our blocks' C into each program.
+    assert std.index("{enable code generation}") < std.index('{#include "mbfb.txt" }')
     for f in ours - {"webserver/lib/mbfb.manifest"}:
         assert open(os.path.join(root, f), "rb").read() == open(os.path.join(dist, f), "rb").read()
 
