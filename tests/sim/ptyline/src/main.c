@@ -224,7 +224,7 @@ static int64_t wait_events(ptyline *p, int64_t now)
         if (fds[i].revents & (POLLIN | POLLHUP | POLLERR)) {
             receive(p, d, now);
             if ((fds[i].revents & POLLHUP) && p->side[d].up && pl_line_room(&p->line, d) == 0)
-                p->side[d].up = 0; /* hung up with the line full: the rest is lost */
+                pl_side_down(&p->side[d]); /* hung up with the line full: the rest is lost */
         }
         if (fds[i].revents & POLLOUT)
             pl_line_dropped(&p->line, !d, pl_side_flush(&p->side[d]));

@@ -91,7 +91,7 @@ void pl_side_close(pl_side *s)
     s->fd = -1;
 }
 
-static void go_down(pl_side *s)
+void pl_side_down(pl_side *s)
 {
     s->up = 0;
     s->out_len = 0;
@@ -118,7 +118,7 @@ long pl_side_read(pl_side *s, uint8_t *buf, size_t max)
         return (long)n;
     if (n < 0 && (errno == EAGAIN || errno == EINTR))
         return 0;
-    go_down(s); /* EIO: the last peer closed its end */
+    pl_side_down(s); /* EIO: the last peer closed its end */
     return -1;
 }
 
@@ -155,7 +155,7 @@ size_t pl_side_flush(pl_side *s)
             return 0;
         } else {
             size_t lost = s->out_len;
-            go_down(s);
+            pl_side_down(s);
             return lost;
         }
     }

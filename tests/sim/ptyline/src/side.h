@@ -34,6 +34,9 @@ int pl_side_check_up(pl_side *s, int64_t now_ns, int force);
  * side is then down). */
 long pl_side_read(pl_side *s, uint8_t *buf, size_t max);
 
+/* Marks the side down (its peer is gone) and forgets what was queued for it. */
+void pl_side_down(pl_side *s);
+
 /* Queues n bytes for the peer; returns how many did not fit or cannot reach it
  * (down side, overrun): those are lost, as on a real line. */
 size_t pl_side_put(pl_side *s, const uint8_t *data, size_t n);
