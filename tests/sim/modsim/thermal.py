@@ -43,10 +43,10 @@ class Pid:
     """
 
     def __init__(self):
-        self.integral, self.last_meas, self.on = 0.0, None, False
+        self.integral, self.last_meas, self.on, self.dterm = 0.0, None, False, 0.0
 
     def reset(self):
-        self.integral, self.last_meas, self.on = 0.0, None, False
+        self.integral, self.last_meas, self.on, self.dterm = 0.0, None, False, 0.0
 
     def step(self, err: float, meas: float, dt: float, band: float, ti: float, td: float,
              bias: float = 0.0, hyst: float = 0.0) -> float:
@@ -64,7 +64,10 @@ class Pid:
         p = 100.0 * err / band
         d = 0.0
         if td > 0 and self.last_meas is not None and dt > 0:
-            d = -100.0 / band * td * (meas - self.last_meas) / dt
+            raw_d = -100.0 / band * td * (meas - self.last_meas) / dt
+            # derivative filtered with time constant td / 8, as industrial PIDs do
+            self.dterm += (raw_d - self.dterm) * dt / (dt + td / 8.0)
+            d = self.dterm
         self.last_meas = meas
         if ti > 0 and dt > 0:
             trial = self.integral + 100.0 * err / band * dt / ti
@@ -72,6 +75,9 @@ class Pid:
             if 0.0 <= unsat <= 100.0 or (unsat > 100.0 and err < 0) or (unsat < 0.0 and err > 0):
                 self.integral = trial          # conditional integration (anti-windup)
         return max(0.0, min(100.0, p + self.integral + d + bias))
+
+
+SAMPLE_S = 0.25      # the controllers' sampling period (simulated seconds)
 
 
 class Loop:
@@ -85,14 +91,18 @@ class Loop:
 
     def run(self, dt: float, sv: float, band: float, ti: float, td: float,
             bias: float = 0.0, hyst: float = 0.0, cooling: bool = False):
-        """One step of dt simulated seconds: control law, then process."""
-        pv = self.plant.temp
-        if self.manual is not None:
-            self.output = self.manual
-        else:
-            sign = -1.0 if cooling else 1.0
-            self.output = self.pid.step(sign * (sv - pv), sign * pv, dt, band, ti, td, bias, hyst)
-        self.plant.step(self.output / 100.0, dt, cooling)
+        """dt simulated seconds: control law then process, sampled every SAMPLE_S at most."""
+        steps = max(1, int(dt / SAMPLE_S + 0.999))
+        h = dt / steps
+        sign = -1.0 if cooling else 1.0
+        for _ in range(steps):
+            pv = self.plant.temp
+            if self.manual is not None:
+                self.output = self.manual
+            else:
+                self.output = self.pid.step(sign * (sv - pv), sign * pv, h, band, ti, td,
+                                            bias, hyst)
+            self.plant.step(self.output / 100.0, h, cooling)
 
     def restart(self):
         """Power cycle: the controller's memory is lost, the process keeps its temperature."""
