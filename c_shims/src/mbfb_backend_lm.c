@@ -42,6 +42,8 @@ static int lm_connect(mbfb_bus_t *bus, modbus_t *ctx)
     if (ctx == NULL)
         return -MBFB_E_NOPORT;
     modbus_set_error_recovery(ctx, MODBUS_ERROR_RECOVERY_NONE);
+    if (getenv("MBFB_DEBUG") != NULL) /* libmodbus prints every frame */
+        modbus_set_debug(ctx, 1);
     modbus_set_byte_timeout(ctx, (uint32_t)(bus->timing.byte_us / 1000000),
                             (uint32_t)(bus->timing.byte_us % 1000000));
     modbus_set_response_timeout(ctx, 1, 0); /* TCP connect; set per request later */

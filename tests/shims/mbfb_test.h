@@ -1,0 +1,125 @@
+/*
+ * mbfb_test.h - assertion helpers and a scripted Modbus peer on a pty, for the
+ * c_shims tests. The peer is written independently of c_shims (its own CRC, LRC and
+ * framing), so the shims are checked against bytes, not against themselves.
+ */
+#ifndef MBFB_TEST_H
+#define MBFB_TEST_H
+
+#include <pthread.h>
+#include <stdint.h>
+#include <stdio.h>
+
+#include "mbfb.h"
+
+/* ---- assertions ------------------------------------------------------------ */
+extern int t_failures;
+extern const char *t_scenario;
+
+#define CHECK(cond)                                                                     \
+    do {                                                                                \
+        if (!(cond)) {                                                                  \
+            t_failures++;                                                               \
+            fprintf(stderr, "FAIL %s:%d [%s]: %s\n", __FILE__, __LINE__, t_scenario,    \
+                    #cond);                                                             \
+        }                                                                               \
+    } while (0)
+
+#define CHECK_EQ(a, b)                                                                  \
+    do {                                                                                \
+        long long a_ = (long long)(a), b_ = (long long)(b);                             \
+        if (a_ != b_) {                                                                 \
+            t_failures++;                                                               \
+            fprintf(stderr, "FAIL %s:%d [%s]: %s == %lld, expected %s == %lld\n",       \
+                    __FILE__, __LINE__, t_scenario, #a, a_, #b, b_);                    \
+        }                                                                               \
+    } while (0)
+
+/** Compare bytes with a hex string like "01 03 00 00" (spaces ignored). */
+#define CHECK_HEX(buf, len, hex) t_check_hex(__FILE__, __LINE__, (buf), (len), (hex))
+void t_check_hex(const char *file, int line, const uint8_t *buf, int len, const char *hex);
+/** Parse "01 03 ..." into out; returns the byte count. */
+int t_hex(const char *hex, uint8_t *out);
+/** Print the result and return the process exit code. */
+int t_done(const char *name);
+
+/** DEVICES.md 3.10: FDC Example 1, FC16 of 52 words with its CRC (113 bytes). */
+extern const char *const fdc_ex1;
+
+/* ---- scripted peer ----------------------------------------------------------- */
+#define PEER_LOG 256
+#define PEER_BUF 600
+
+enum { PEER_RTU, PEER_ASCII }; /* how the peer frames (RTU also for RTU-without-CRC) */
+
+typedef struct peer_reply {
+    uint8_t out[PEER_BUF];
+    int len;                  /* bytes to write; 0 = stay silent */
+    int delay_ms;             /* wait this long before writing     */
+} peer_reply_t;
+
+struct peer;
+/** Called for each request. n = index of the request (0-based); frame = slave + PDU
+ *  (check bytes removed, ASCII decoded); raw = bytes as received. */
+typedef void (*peer_fn)(struct peer *p, int n, const uint8_t *frame, int flen,
+                        peer_reply_t *r);
+
+typedef struct peer {
+    int master, slave_keep;
+    int mode;                 /* PEER_RTU / PEER_ASCII                            */
+    char link[128];           /* symlink the shims open                           */
+    peer_fn fn;
+    void *user;
+    volatile int stop;
+    pthread_t th;
+    pthread_mutex_t lock;
+    /* log (under lock) */
+    int n;                    /* requests received                                */
+    long bytes;               /* bytes received                                   */
+    int per_slave[256];
+    uint8_t raw[PEER_LOG][PEER_BUF];
+    int raw_len[PEER_LOG];
+    int64_t t_us[PEER_LOG];   /* time the request was complete                    */
+    /* a tiny register bank for peer_answer(); slaves 0..7, registers 0..255 */
+    uint16_t regs[8][256];
+    int dead[256];            /* peer_answer stays silent for these slaves        */
+} peer_t;
+
+/** Start a peer on a new pty; `link` becomes a symlink to it (replaced if present). */
+int peer_start(peer_t *p, const char *link, int mode, peer_fn fn, void *user);
+/** Stop the thread and close the pty (the shims' port is then gone). */
+void peer_stop(peer_t *p);
+int peer_count(peer_t *p);
+long peer_bytes(peer_t *p);
+int peer_slave_count(peer_t *p, int slave);
+/** Copy request i as received; returns its length. */
+int peer_raw(peer_t *p, int i, uint8_t *out);
+int64_t peer_time(peer_t *p, int i);
+
+/** Reply helpers: encode frame (slave + PDU) for the peer's mode with a correct
+ *  CRC / LRC; or raw bytes. They append to r. */
+void peer_reply_frame(peer_t *p, peer_reply_t *r, const uint8_t *frame, int len);
+void peer_reply_hex(peer_t *p, peer_reply_t *r, const char *frame_hex);
+void peer_reply_raw(peer_reply_t *r, const uint8_t *bytes, int len);
+/** A well-behaved device from the register bank. */
+void peer_answer(peer_t *p, int n, const uint8_t *frame, int flen, peer_reply_t *r);
+
+/* independent check functions of the peer */
+uint16_t peer_crc16(const uint8_t *buf, int len);
+uint8_t peer_lrc(const uint8_t *buf, int len);
+
+/* ---- shim helpers ------------------------------------------------------------ */
+/** Poll a request until it finishes (DONE/FAILED), at most 30 s. Returns the state. */
+int t_wait(int req);
+/** post + wait + take. Returns mbfb_take's result (or the post error). */
+int t_run(int dev, int fc, int addr, int count, const uint16_t *vals, uint16_t *out,
+          int max);
+/** Bus config helper. */
+mbfb_bus_config_t t_cfg(const char *port, int baud, int framing, int timeout_ms,
+                        int retries);
+void t_sleep_ms(int ms);
+int64_t t_now_us(void);
+/** A fresh temporary directory for pty links; returns path (static). */
+const char *t_tmpdir(void);
+
+#endif

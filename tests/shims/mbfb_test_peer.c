@@ -1,0 +1,400 @@
+/*
+ * mbfb_test_peer.c - assertion helpers and the scripted pty peer (see mbfb_test.h).
+ */
+#define _GNU_SOURCE
+#include <errno.h>
+#include <fcntl.h>
+#include <poll.h>
+#include <pty.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <termios.h>
+#include <time.h>
+#include <unistd.h>
+
+#include "mbfb_test.h"
+
+/* 3.10 FDC Example 1: FC16 download of 52 words (113 bytes, CRC 0xC38E sent 8E C3). */
+const char *const fdc_ex1 =
+    "01 10 00 00 00 34 68 4F19 4E83 4E83 0000 0001 0000 0001 4D6D 51C4 4D6D 6321 4E1F "
+    "0002 0000 0064 0064 00FA 0000 0000 4E1F 0001 00B4 00FA 0000 0000 0002 4E1F 0000 "
+    "4E1F 0001 00B4 0064 4E1F 0002 5207 0000 0001 0000 0001 0001 0002 0001 0000 0000 "
+    "0002 0003 0004 0006 0007 0008 000A 0011 8E C3";
+
+int t_failures;
+const char *t_scenario = "";
+
+/* ---- assertions ------------------------------------------------------------ */
+int t_hex(const char *hex, uint8_t *out)
+{
+    int n = 0, hi = -1;
+    for (; *hex; hex++) {
+        int c = *hex, v;
+        if (c >= '0' && c <= '9')
+            v = c - '0';
+        else if (c >= 'A' && c <= 'F')
+            v = c - 'A' + 10;
+        else if (c >= 'a' && c <= 'f')
+            v = c - 'a' + 10;
+        else
+            continue;
+        if (hi < 0) {
+            hi = v;
+        } else {
+            out[n++] = (uint8_t)(hi << 4 | v);
+            hi = -1;
+        }
+    }
+    return n;
+}
+
+void t_check_hex(const char *file, int line, const uint8_t *buf, int len, const char *hex)
+{
+    uint8_t want[PEER_BUF];
+    int n = t_hex(hex, want);
+    if (n != len || memcmp(buf, want, (size_t)n) != 0) {
+        t_failures++;
+        fprintf(stderr, "FAIL %s:%d [%s]: bytes differ\n  got :", file, line, t_scenario);
+        for (int i = 0; i < len; i++)
+            fprintf(stderr, " %02X", buf[i]);
+        fprintf(stderr, "\n  want: %s\n", hex);
+    }
+}
+
+int t_done(const char *name)
+{
+    if (t_failures)
+        fprintf(stderr, "%s: %d check(s) FAILED\n", name, t_failures);
+    else
+        printf("%s: all checks passed\n", name);
+    return t_failures ? 1 : 0;
+}
+
+/* ---- time ------------------------------------------------------------------ */
+int64_t t_now_us(void)
+{
+    struct timespec ts;
+    clock_gettime(CLOCK_MONOTONIC, &ts);
+    return (int64_t)ts.tv_sec * 1000000 + ts.tv_nsec / 1000;
+}
+
+void t_sleep_ms(int ms)
+{
+    struct timespec ts = {ms / 1000, (long)(ms % 1000) * 1000000L};
+    while (nanosleep(&ts, &ts) == -1 && errno == EINTR) {
+    }
+}
+
+const char *t_tmpdir(void)
+{
+    static char dir[64];
+    if (!dir[0]) {
+        snprintf(dir, sizeof dir, "/tmp/mbfb_test_XXXXXX");
+        if (mkdtemp(dir) == NULL) {
+            perror("mkdtemp");
+            exit(2);
+        }
+    }
+    return dir;
+}
+
+/* ---- CRC / LRC (independent of c_shims) ---------------------------------------- */
+uint16_t peer_crc16(const uint8_t *buf, int len)
+{
+    static uint16_t table[256];
+    uint16_t crc = 0xFFFF;
+    if (table[1] == 0) { /* table-driven, unlike the shims' bitwise one */
+        for (int i = 0; i < 256; i++) {
+            uint16_t c = (uint16_t)i;
+            for (int b = 0; b < 8; b++)
+                c = (c & 1) ? (uint16_t)((c >> 1) ^ 0xA001) : (uint16_t)(c >> 1);
+            table[i] = c;
+        }
+    }
+    for (int i = 0; i < len; i++)
+        crc = (uint16_t)((crc >> 8) ^ table[(crc ^ buf[i]) & 0xFF]);
+    return crc;
+}
+
+uint8_t peer_lrc(const uint8_t *buf, int len)
+{
+    unsigned sum = 0;
+    for (int i = 0; i < len; i++)
+        sum += buf[i];
+    return (uint8_t)((0x100 - (sum & 0xFF)) & 0xFF);
+}
+
+/* ---- the peer --------------------------------------------------------------- */
+static int read_byte(peer_t *p, uint8_t *b, int wait_ms)
+{
+    struct pollfd pf = {p->master, POLLIN, 0};
+    if (poll(&pf, 1, wait_ms) <= 0)
+        return 0;
+    return read(p->master, b, 1) == 1;
+}
+
+/* Read one request: RTU by its length rules, ASCII up to LF. Returns its length,
+ * 0 if none started (checks stop every 20 ms). */
+static int read_request(peer_t *p, uint8_t *buf)
+{
+    int n = 0, need = 2;
+    while (n == 0) {
+        if (p->stop)
+            return 0;
+        if (read_byte(p, buf, 20))
+            n = 1;
+    }
+    while (n < PEER_BUF) {
+        if (p->mode == PEER_ASCII && buf[n - 1] == '\n')
+            return n;
+        if (p->mode == PEER_RTU && n >= need) {
+            int fc = buf[1];
+            if (fc == 3 || fc == 4 || fc == 6)
+                need = 8;
+            else if (fc == 16)
+                need = n >= 7 ? 9 + buf[6] : 7;
+            else
+                need = PEER_BUF; /* unknown: until silence */
+            if (n >= need)
+                return n;
+        }
+        if (!read_byte(p, buf + n, 100))
+            return n; /* silence: deliver what came */
+        n++;
+    }
+    return n;
+}
+
+static int decode(peer_t *p, const uint8_t *raw, int len, uint8_t *frame)
+{
+    if (p->mode == PEER_RTU) {
+        if (len <= 2)
+            return 0;
+        memcpy(frame, raw, (size_t)(len - 2));
+        return len - 2;
+    }
+    char hex[PEER_BUF + 1];
+    if (len < 5 || raw[0] != ':')
+        return 0;
+    memcpy(hex, raw + 1, (size_t)(len - 3)); /* between ':' and CR LF */
+    hex[len - 3] = 0;
+    return t_hex(hex, frame) - 1; /* without the LRC */
+}
+
+static void *peer_main(void *arg)
+{
+    peer_t *p = (peer_t *)arg;
+    uint8_t raw[PEER_BUF], frame[PEER_BUF];
+    while (!p->stop) {
+        peer_reply_t r;
+        int len = read_request(p, raw), flen, n;
+        if (len <= 0)
+            continue;
+        flen = decode(p, raw, len, frame);
+        pthread_mutex_lock(&p->lock);
+        n = p->n++;
+        p->bytes += len;
+        if (flen > 0)
+            p->per_slave[frame[0]]++;
+        if (n < PEER_LOG) {
+            memcpy(p->raw[n], raw, (size_t)len);
+            p->raw_len[n] = len;
+            p->t_us[n] = t_now_us();
+        }
+        pthread_mutex_unlock(&p->lock);
+        memset(&r, 0, sizeof r);
+        if (flen > 0 && p->fn)
+            p->fn(p, n, frame, flen, &r);
+        if (r.delay_ms)
+            t_sleep_ms(r.delay_ms);
+        if (r.len > 0 && write(p->master, r.out, (size_t)r.len) != r.len)
+            fprintf(stderr, "peer: short write\n");
+    }
+    return NULL;
+}
+
+int peer_start(peer_t *p, const char *link, int mode, peer_fn fn, void *user)
+{
+    struct termios tio;
+    char name[64], tmp[160];
+    memset(p, 0, sizeof *p);
+    if (openpty(&p->master, &p->slave_keep, name, NULL, NULL) != 0)
+        return -1;
+    /* raw on the slave side, as the shims will set it: no echo, no CR/LF mapping */
+    tcgetattr(p->slave_keep, &tio);
+    cfmakeraw(&tio);
+    tcsetattr(p->slave_keep, TCSANOW, &tio);
+    snprintf(p->link, sizeof p->link, "%s", link);
+    snprintf(tmp, sizeof tmp, "%s.new", link);
+    unlink(tmp);
+    if (symlink(name, tmp) != 0 || rename(tmp, link) != 0)
+        return -1;
+    p->mode = mode;
+    p->fn = fn;
+    p->user = user;
+    pthread_mutex_init(&p->lock, NULL);
+    return pthread_create(&p->th, NULL, peer_main, p) == 0 ? 0 : -1;
+}
+
+void peer_stop(peer_t *p)
+{
+    p->stop = 1;
+    pthread_join(p->th, NULL);
+    close(p->master);
+    close(p->slave_keep);
+    p->master = p->slave_keep = -1;
+}
+
+int peer_count(peer_t *p)
+{
+    int n;
+    pthread_mutex_lock(&p->lock);
+    n = p->n;
+    pthread_mutex_unlock(&p->lock);
+    return n;
+}
+
+long peer_bytes(peer_t *p)
+{
+    long n;
+    pthread_mutex_lock(&p->lock);
+    n = p->bytes;
+    pthread_mutex_unlock(&p->lock);
+    return n;
+}
+
+int peer_slave_count(peer_t *p, int slave)
+{
+    int n;
+    pthread_mutex_lock(&p->lock);
+    n = p->per_slave[slave & 255];
+    pthread_mutex_unlock(&p->lock);
+    return n;
+}
+
+int peer_raw(peer_t *p, int i, uint8_t *out)
+{
+    int n = 0;
+    pthread_mutex_lock(&p->lock);
+    if (i >= 0 && i < p->n && i < PEER_LOG) {
+        n = p->raw_len[i];
+        memcpy(out, p->raw[i], (size_t)n);
+    }
+    pthread_mutex_unlock(&p->lock);
+    return n;
+}
+
+int64_t peer_time(peer_t *p, int i)
+{
+    int64_t t = 0;
+    pthread_mutex_lock(&p->lock);
+    if (i >= 0 && i < p->n && i < PEER_LOG)
+        t = p->t_us[i];
+    pthread_mutex_unlock(&p->lock);
+    return t;
+}
+
+/* ---- replies --------------------------------------------------------------- */
+void peer_reply_raw(peer_reply_t *r, const uint8_t *bytes, int len)
+{
+    if (r->len + len <= PEER_BUF) {
+        memcpy(r->out + r->len, bytes, (size_t)len);
+        r->len += len;
+    }
+}
+
+void peer_reply_frame(peer_t *p, peer_reply_t *r, const uint8_t *frame, int len)
+{
+    uint8_t buf[PEER_BUF];
+    int n = 0;
+    if (p->mode == PEER_RTU) {
+        uint16_t crc = peer_crc16(frame, len);
+        memcpy(buf, frame, (size_t)len);
+        n = len;
+        buf[n++] = (uint8_t)(crc & 0xFF);
+        buf[n++] = (uint8_t)(crc >> 8);
+    } else {
+        uint8_t lrc = peer_lrc(frame, len);
+        n = sprintf((char *)buf, ":");
+        for (int i = 0; i < len; i++)
+            n += sprintf((char *)buf + n, "%02X", frame[i]);
+        n += sprintf((char *)buf + n, "%02X\r\n", lrc);
+    }
+    peer_reply_raw(r, buf, n);
+}
+
+void peer_reply_hex(peer_t *p, peer_reply_t *r, const char *frame_hex)
+{
+    uint8_t f[PEER_BUF];
+    peer_reply_frame(p, r, f, t_hex(frame_hex, f));
+}
+
+void peer_answer(peer_t *p, int n, const uint8_t *f, int flen, peer_reply_t *r)
+{
+    int slave = f[0], fc = f[1], addr = f[2] << 8 | f[3], cnt = f[4] << 8 | f[5];
+    uint16_t *regs = p->regs[slave & 7];
+    uint8_t out[PEER_BUF];
+    int k = 0;
+    (void)n;
+    if (flen < 6 || p->dead[slave] || slave == 0)
+        return;
+    out[k++] = (uint8_t)slave;
+    out[k++] = (uint8_t)fc;
+    if (fc == 3 || fc == 4) {
+        out[k++] = (uint8_t)(2 * cnt);
+        for (int i = 0; i < cnt; i++) {
+            out[k++] = (uint8_t)(regs[(addr + i) & 255] >> 8);
+            out[k++] = (uint8_t)regs[(addr + i) & 255];
+        }
+    } else if (fc == 6 || fc == 16) {
+        if (fc == 6)
+            regs[addr & 255] = (uint16_t)cnt;
+        else
+            for (int i = 0; i < cnt; i++)
+                regs[(addr + i) & 255] = (uint16_t)(f[7 + 2 * i] << 8 | f[8 + 2 * i]);
+        memcpy(out + k, f + 2, 4);
+        k += 4;
+    } else {
+        out[1] = (uint8_t)(fc | 0x80);
+        out[k++] = 1;
+    }
+    peer_reply_frame(p, r, out, k);
+}
+
+/* ---- shim helpers -------------------------------------------------------------- */
+int t_wait(int req)
+{
+    int64_t end = t_now_us() + 30000000;
+    int st;
+    while ((st = mbfb_poll(req)) == MBFB_REQ_QUEUED || st == MBFB_REQ_ACTIVE) {
+        if (t_now_us() > end)
+            break;
+        t_sleep_ms(1);
+    }
+    return st;
+}
+
+int t_run(int dev, int fc, int addr, int count, const uint16_t *vals, uint16_t *out, int max)
+{
+    int h = mbfb_post(dev, fc, addr, count, vals);
+    if (h < 0)
+        return h;
+    t_wait(h);
+    return mbfb_take(h, out, max);
+}
+
+mbfb_bus_config_t t_cfg(const char *port, int baud, int framing, int timeout_ms, int retries)
+{
+    mbfb_bus_config_t c;
+    memset(&c, 0, sizeof c);
+    c.port = port;
+    c.baud = baud;
+    c.parity = 'N';
+    c.data_bits = 8;
+    c.stop_bits = 1;
+    c.framing = framing;
+    c.response_timeout_ms = timeout_ms;
+    c.retries = retries;
+    return c;
+}

@@ -1,0 +1,478 @@
+/*
+ * test_bus.c - the shims on a pty against a scripted peer: the manuals' frames byte
+ * for byte in all three serial framings, broadcast, bad arguments (nothing on the
+ * wire), queue full, cancel, stale handles, settings conflicts, a missing port, port
+ * loss and reopen, several devices on one bus with one of them dead.
+ */
+#include <string.h>
+
+#include "mbfb_test.h"
+
+static peer_t P;
+
+static const char *link_path(void)
+{
+    static char link[160];
+    snprintf(link, sizeof link, "%s/port", t_tmpdir());
+    return link;
+}
+
+static int open_bus(peer_fn fn, int mode, int baud, char parity, int data, int stop,
+                    int framing, int timeout_ms, int retries)
+{
+    mbfb_bus_config_t c;
+    if (peer_start(&P, link_path(), mode, fn, NULL) != 0) {
+        perror("peer_start");
+        return -1;
+    }
+    c = t_cfg(P.link, baud, framing, timeout_ms, retries);
+    c.parity = parity;
+    c.data_bits = data;
+    c.stop_bits = stop;
+    return mbfb_bus_open(&c);
+}
+
+static void teardown(void)
+{
+    mbfb_shutdown();
+    peer_stop(&P);
+}
+
+/* ---- the manuals' exchanges, byte for byte -------------------------------------- */
+typedef struct { const char *req, *rsp; } exchange_t;
+static const exchange_t *table;
+static int table_ascii;
+
+static int decode_entry(const char *s, uint8_t *out)
+{
+    if (table_ascii) {
+        memcpy(out, s, strlen(s));
+        return (int)strlen(s);
+    }
+    return t_hex(s, out);
+}
+
+/* Answer with the manual's reply bytes when the request is the manual's, byte for byte. */
+static void manual_peer(peer_t *p, int n, const uint8_t *f, int len, peer_reply_t *r)
+{
+    uint8_t raw[PEER_BUF], want[PEER_BUF];
+    int rl = peer_raw(p, n, raw);
+    (void)f, (void)len;
+    for (int i = 0; table[i].req; i++) {
+        int wl = decode_entry(table[i].req, want);
+        if (wl == rl && memcmp(raw, want, (size_t)wl) == 0) {
+            r->len = decode_entry(table[i].rsp, r->out);
+            return;
+        }
+    }
+}
+
+static void check_sent(int i, const char *want)
+{
+    uint8_t raw[PEER_BUF], w[PEER_BUF];
+    int n = peer_raw(&P, i, raw);
+    if (table_ascii) {
+        CHECK_EQ(n, (int)strlen(want));
+        CHECK(n == (int)strlen(want) && memcmp(raw, want, (size_t)n) == 0);
+    } else {
+        CHECK_HEX(raw, n, want);
+    }
+    (void)w;
+}
+
+static const exchange_t setpro_fdc[] = {
+    {"01 03 00 00 00 01 84 0A", "01 03 02 03 E8 B8 FA"},       /* MV-D94 read SV */
+    {"01 04 10 00 00 01 35 0A", "01 04 02 00 1B F9 3B"},       /* read PV        */
+    {"01 06 00 00 01 F4 89 DD", "01 06 00 00 01 F4 89 DD"},    /* SV = 500       */
+    {"01 10 00 00 00 02 04 00 0A 01 02 53 FC", "01 10 00 00 00 02 41 C8"}, /* MT-S9 */
+    {"01 06 00 48 68 25 E7 C7", "01 06 00 48 68 25 E7 C7"},    /* FDC Ex3 reset  */
+    {"01 03 01 00 00 01 85 F6", "01 83 02 C0 F1"},             /* exception 2    */
+    {NULL, NULL}, /* FDC Ex1 is added at run time */
+    {NULL, NULL},
+};
+
+static void manual_rtu(void)
+{
+    exchange_t tab[8];
+    uint16_t v[60];
+    uint8_t b[PEER_BUF];
+    int bus, dev;
+
+    memcpy(tab, setpro_fdc, sizeof setpro_fdc);
+    tab[6].req = fdc_ex1;
+    tab[6].rsp = "01 10 00 00 00 34 C1 DE";
+    table = tab;
+    table_ascii = 0;
+    t_scenario = "manual frames rtu";
+    bus = open_bus(manual_peer, PEER_RTU, 9600, 'N', 8, 2, MBFB_FRAMING_RTU, 0, 0);
+    dev = mbfb_dev_open(bus, 1);
+    CHECK_EQ(t_run(dev, 3, 0, 1, NULL, v, 1), 1);
+    CHECK_EQ(v[0], 1000);
+    CHECK_EQ(t_run(dev, 4, 0x1000, 1, NULL, v, 1), 1);
+    CHECK_EQ(v[0], 27);
+    v[0] = 500;
+    CHECK_EQ(t_run(dev, 6, 0, 1, v, NULL, 0), 0);
+    v[0] = 0x000A; /* 16908298, low word first */
+    v[1] = 0x0102;
+    CHECK_EQ(t_run(dev, 16, 0, 2, v, NULL, 0), 0);
+    v[0] = 0x6825;
+    CHECK_EQ(t_run(dev, 6, 72, 1, v, NULL, 0), 0);
+    CHECK_EQ(t_run(dev, 3, 0x100, 1, NULL, v, 1), -130);
+    t_hex(fdc_ex1, b);
+    for (int i = 0; i < 52; i++)
+        v[i] = (uint16_t)(b[7 + 2 * i] << 8 | b[8 + 2 * i]);
+    CHECK_EQ(t_run(dev, 16, 0, 52, v, NULL, 0), 0);
+    for (int i = 0; i < 7; i++)
+        check_sent(i, tab[i].req);
+    CHECK_EQ(peer_count(&P), 7);
+    teardown();
+}
+
+static const exchange_t mts9_ascii[] = {
+    {":010300000002FA\r\n", ":01030407140714C2\r\n"},
+    {":010600000002F7\r\n", ":010600000002F7\r\n"},
+    {":01100000000204000A0102DC\r\n", ":011000000002ED\r\n"}, /* manual misprints FA */
+    {NULL, NULL},
+};
+
+static void manual_ascii(void)
+{
+    uint16_t v[2];
+    int bus, dev;
+    table = mts9_ascii;
+    table_ascii = 1;
+    t_scenario = "manual frames ascii";
+    bus = open_bus(manual_peer, PEER_ASCII, 9600, 'E', 7, 1, MBFB_FRAMING_ASCII, 0, 0);
+    dev = mbfb_dev_open(bus, 1);
+    CHECK_EQ(t_run(dev, 3, 0, 2, NULL, v, 2), 2);
+    CHECK_EQ(v[0], 0x0714);
+    CHECK_EQ(v[1], 0x0714);
+    v[0] = 2;
+    CHECK_EQ(t_run(dev, 6, 0, 1, v, NULL, 0), 0);
+    v[0] = 0x000A;
+    v[1] = 0x0102;
+    CHECK_EQ(t_run(dev, 16, 0, 2, v, NULL, 0), 0);
+    for (int i = 0; i < 3; i++)
+        check_sent(i, mts9_ascii[i].req);
+    teardown();
+}
+
+static const exchange_t mts9_nocrc[] = {
+    {"01 03 00 00 00 02 00 00", "01 03 04 00 00 00 00 FA 33"}, /* reply as corrected */
+    {"01 06 00 00 00 02 00 00", "01 06 00 00 00 02 08 0B"},
+    {"01 10 00 00 00 02 04 00 0A 01 02 00 00", "01 10 00 00 00 02 41 C8"},
+    {"01 03 00 02 00 02 00 00", "01 03 04 00 00 00 02 FA 33"}, /* as misprinted */
+    {NULL, NULL},
+};
+
+static void manual_nocrc(void)
+{
+    uint16_t v[2] = {9, 9};
+    int bus, dev;
+    table = mts9_nocrc;
+    table_ascii = 0;
+    t_scenario = "manual frames rtu-nocrc";
+    bus = open_bus(manual_peer, PEER_RTU, 9600, 'N', 8, 1, MBFB_FRAMING_RTU_NOCRC, 0, 0);
+    dev = mbfb_dev_open(bus, 1);
+    CHECK_EQ(t_run(dev, 3, 0, 2, NULL, v, 2), 2);
+    CHECK_EQ(v[0], 0);
+    CHECK_EQ(v[1], 0);
+    v[0] = 2;
+    CHECK_EQ(t_run(dev, 6, 0, 1, v, NULL, 0), 0);
+    v[0] = 0x000A;
+    v[1] = 0x0102;
+    CHECK_EQ(t_run(dev, 16, 0, 2, v, NULL, 0), 0);
+    /* the reply CRC is still checked: the manual's misprinted reply is refused */
+    CHECK_EQ(t_run(dev, 3, 2, 2, NULL, v, 2), -MBFB_E_CRC);
+    for (int i = 0; i < 4; i++)
+        check_sent(i, mts9_nocrc[i].req);
+    teardown();
+}
+
+/* ---- broadcast ---------------------------------------------------------------- */
+static void broadcast(void)
+{
+    uint16_t v[2] = {500, 7};
+    int bus, bc, dev, h;
+    mbfb_diag_t d;
+
+    t_scenario = "broadcast";
+    bus = open_bus(peer_answer, PEER_RTU, 9600, 'N', 8, 2, MBFB_FRAMING_RTU, 200, 3);
+    bc = mbfb_dev_open(bus, 0);
+    dev = mbfb_dev_open(bus, 1);
+    CHECK(bc >= 0);
+    CHECK_EQ(mbfb_post(bc, 3, 0, 1, NULL), -MBFB_E_INVAL); /* no reply to a read */
+    h = mbfb_post(bc, 6, 0, 1, v);
+    CHECK_EQ(t_wait(h), MBFB_REQ_DONE);
+    CHECK_EQ(mbfb_take(h, NULL, 0), 0);
+    CHECK_EQ(t_run(dev, 3, 0, 1, NULL, v, 1), 1);
+    CHECK_EQ(t_run(bc, 16, 0, 2, v, NULL, 0), 0);
+    CHECK_EQ(peer_count(&P), 3); /* sent once each: nothing awaited, nothing retried */
+    {
+        uint8_t raw[PEER_BUF];
+        CHECK_HEX(raw, peer_raw(&P, 0, raw), "00 06 00 00 01 F4 88 0C");
+    }
+    /* SetPro processing time: >= 10 ms of turnaround after a broadcast (a lower bound
+     * with slack for the peer's own scheduling) */
+    CHECK(peer_time(&P, 1) - peer_time(&P, 0) >= 8000);
+    CHECK_EQ(mbfb_dev_diag(bc, &d), 0);
+    CHECK_EQ(d.requests, 2);
+    CHECK_EQ(d.timeouts, 0);
+    teardown();
+}
+
+/* ---- bad arguments: an error code, a message, and nothing on the wire --------------- */
+static void bad_args(void)
+{
+    uint16_t v[130] = {0};
+    mbfb_bus_config_t c;
+    int bus, dev;
+
+    t_scenario = "bad arguments";
+    bus = open_bus(peer_answer, PEER_RTU, 19200, 'E', 8, 1, MBFB_FRAMING_RTU, 200, 3);
+    CHECK(bus >= 0);
+    c = t_cfg(P.link, 19200, 7, 0, -1);
+    CHECK_EQ(mbfb_bus_open(&c), -MBFB_E_INVAL); /* unknown framing */
+    c = t_cfg(P.link, 0, MBFB_FRAMING_RTU, 0, -1);
+    CHECK_EQ(mbfb_bus_open(&c), -MBFB_E_INVAL);
+    c = t_cfg(P.link, 9600, MBFB_FRAMING_RTU, 0, -1);
+    c.parity = 'X';
+    CHECK_EQ(mbfb_bus_open(&c), -MBFB_E_INVAL);
+    c.parity = 'N';
+    c.data_bits = 7; /* RTU is binary */
+    CHECK_EQ(mbfb_bus_open(&c), -MBFB_E_INVAL);
+    c.data_bits = 8;
+    c.stop_bits = 3;
+    CHECK_EQ(mbfb_bus_open(&c), -MBFB_E_INVAL);
+    c = t_cfg("tcp://127.0.0.1:1502", 9600, MBFB_FRAMING_RTU, 0, -1);
+    CHECK_EQ(mbfb_bus_open(&c), -MBFB_E_INVAL);
+    c = t_cfg("/dev/ttyUSB0", 9600, MBFB_FRAMING_TCP, 0, -1);
+    CHECK_EQ(mbfb_bus_open(&c), -MBFB_E_INVAL);
+    c = t_cfg("", 9600, MBFB_FRAMING_RTU, 0, -1);
+    CHECK_EQ(mbfb_bus_open(&c), -MBFB_E_INVAL);
+    CHECK_EQ(mbfb_bus_open(NULL), -MBFB_E_INVAL);
+    CHECK_EQ(mbfb_dev_open(bus, 248), -MBFB_E_INVAL);
+    CHECK_EQ(mbfb_dev_open(bus, -1), -MBFB_E_INVAL);
+    CHECK_EQ(mbfb_dev_open(15, 1), -MBFB_E_BADHANDLE);
+    dev = mbfb_dev_open(bus, 247);
+    CHECK(dev >= 0);
+    dev = mbfb_dev_open(bus, 1);
+    CHECK_EQ(mbfb_post(dev, 3, 0, 0, NULL), -MBFB_E_INVAL);
+    CHECK_EQ(mbfb_post(dev, 3, 0, 126, NULL), -MBFB_E_INVAL);
+    CHECK_EQ(mbfb_post(dev, 4, 65535, 2, NULL), -MBFB_E_INVAL);
+    CHECK_EQ(mbfb_post(dev, 5, 0, 1, v), -MBFB_E_INVAL);
+    CHECK_EQ(mbfb_post(dev, 6, 0, 1, NULL), -MBFB_E_INVAL);
+    CHECK_EQ(mbfb_post(dev, 16, 0, 124, v), -MBFB_E_INVAL);
+    CHECK_EQ(mbfb_post(dev, 16, -1, 1, v), -MBFB_E_INVAL);
+    CHECK_EQ(mbfb_post(999, 3, 0, 1, NULL), -MBFB_E_BADHANDLE);
+    CHECK_EQ(mbfb_post(-1, 3, 0, 1, NULL), -MBFB_E_BADHANDLE);
+    CHECK(strlen(mbfb_strerror(-MBFB_E_INVAL)) > 0);
+    t_sleep_ms(100);
+    CHECK_EQ(peer_bytes(&P), 0); /* nothing was sent */
+    P.regs[1][3] = 4242;
+    CHECK_EQ(t_run(dev, 3, 3, 1, NULL, v, 1), 1); /* the bus works: exactly one frame */
+    CHECK_EQ(v[0], 4242);
+    CHECK_EQ(peer_count(&P), 1);
+    teardown();
+}
+
+/* ---- queue full, cancel, stale handles ----------------------------------------- */
+static void silent(peer_t *p, int n, const uint8_t *f, int len, peer_reply_t *r)
+{
+    (void)p, (void)n, (void)f, (void)len, (void)r;
+}
+
+static void queue_cancel_handles(void)
+{
+    int h[80], bus, dev, n = 0, rc;
+    uint16_t v[2];
+
+    t_scenario = "queue full, cancel, handles";
+    bus = open_bus(silent, PEER_RTU, 38400, 'N', 8, 1, MBFB_FRAMING_RTU, 400, 0);
+    dev = mbfb_dev_open(bus, 1);
+    while ((rc = mbfb_post(dev, 3, n, 1, NULL)) > 0 && n < 80)
+        h[n++] = rc;
+    CHECK_EQ(rc, -MBFB_E_QUEUEFULL);
+    CHECK_EQ(n, 64);
+    t_sleep_ms(50);
+    CHECK_EQ(mbfb_poll(h[0]), MBFB_REQ_ACTIVE);
+    CHECK_EQ(mbfb_take(h[0], v, 1), -MBFB_E_BADHANDLE); /* not finished */
+    CHECK_EQ(mbfb_poll(h[0]), MBFB_REQ_ACTIVE);          /* ...and still alive */
+    CHECK_EQ(mbfb_poll(h[1]), MBFB_REQ_QUEUED);
+    for (int i = 0; i < n; i++)
+        CHECK_EQ(mbfb_cancel(h[i]), 0);
+    for (int i = 0; i < n; i++) {
+        CHECK_EQ(mbfb_poll(h[i]), -MBFB_E_BADHANDLE);
+        CHECK_EQ(mbfb_cancel(h[i]), -MBFB_E_BADHANDLE);
+    }
+    rc = mbfb_post(dev, 3, 0, 1, NULL); /* slots were freed */
+    CHECK(rc > 0);
+    CHECK_EQ(t_wait(rc), MBFB_REQ_FAILED);
+    CHECK_EQ(mbfb_take(rc, v, 1), -MBFB_E_TIMEOUT);
+    CHECK_EQ(mbfb_take(rc, v, 1), -MBFB_E_BADHANDLE); /* taken: stale */
+    CHECK_EQ(mbfb_poll(rc), -MBFB_E_BADHANDLE);
+    CHECK_EQ(peer_count(&P), 2); /* the active one and the last: cancelled never sent */
+    CHECK_EQ(mbfb_poll(0), -MBFB_E_BADHANDLE);
+    CHECK_EQ(mbfb_poll(-7), -MBFB_E_BADHANDLE);
+    CHECK_EQ(mbfb_poll(0x7FFFFFFF), -MBFB_E_BADHANDLE);
+    CHECK_EQ(mbfb_take(12345, v, 1), -MBFB_E_BADHANDLE);
+    teardown();
+}
+
+/* ---- settings conflicts, flat-argument open ------------------------------------- */
+static void conflicts(void)
+{
+    mbfb_bus_config_t c;
+    char port[200];
+    int bus, dev;
+
+    t_scenario = "conflicts";
+    bus = open_bus(peer_answer, PEER_RTU, 9600, 'N', 8, 2, MBFB_FRAMING_RTU, 0, -1);
+    c = t_cfg(P.link, 9600, MBFB_FRAMING_RTU, 0, 3);
+    c.stop_bits = 2;
+    CHECK_EQ(mbfb_bus_open(&c), bus); /* same settings (retries -1 = 3): joined */
+    c.baud = 19200;
+    CHECK_EQ(mbfb_bus_open(&c), -MBFB_E_CONFLICT);
+    c.baud = 9600;
+    c.framing = MBFB_FRAMING_RTU_NOCRC;
+    CHECK_EQ(mbfb_bus_open(&c), -MBFB_E_CONFLICT);
+    /* an IEC STRING body: not NUL-terminated, parity as 0/1/2 */
+    size_t n = strlen(P.link);
+    memcpy(port, P.link, n);
+    memcpy(port + n, "XYZ", 3);
+    CHECK_EQ(mbfb_bus_open_args(port, (int)n, 9600, 0, 8, 2, MBFB_FRAMING_RTU, 0, -1), bus);
+    CHECK_EQ(mbfb_bus_open_args(port, (int)n, 9600, 1, 8, 2, MBFB_FRAMING_RTU, 0, -1),
+             -MBFB_E_CONFLICT);
+    CHECK_EQ(mbfb_bus_open_args(port, 0, 9600, 0, 8, 2, 0, 0, -1), -MBFB_E_INVAL);
+    dev = mbfb_dev_open(bus, 5);
+    CHECK_EQ(mbfb_dev_open(bus, 5), dev); /* blocks on one device share it */
+    CHECK_EQ(peer_bytes(&P), 0);
+    teardown();
+}
+
+/* ---- a port that does not exist -------------------------------------------------- */
+static void no_port(void)
+{
+    mbfb_bus_config_t c = t_cfg("/nonexistent/ttyUSB9", 9600, MBFB_FRAMING_RTU, 0, -1);
+    mbfb_diag_t d;
+    int bus, dev;
+    uint16_t v[1];
+
+    t_scenario = "no port";
+    bus = mbfb_bus_open(&c);
+    CHECK(bus >= 0);
+    dev = mbfb_dev_open(bus, 1);
+    CHECK_EQ(t_run(dev, 3, 0, 1, NULL, v, 1), -MBFB_E_NOPORT);
+    CHECK_EQ(mbfb_dev_diag(dev, &d), 0);
+    CHECK_EQ(d.last_error, MBFB_E_NOPORT);
+    CHECK_EQ(d.requests, 0);
+    CHECK(strstr(mbfb_strerror(-MBFB_E_NOPORT), "port") != NULL);
+    c = t_cfg("tcp://127.0.0.1:1", 9600, MBFB_FRAMING_TCP, 0, 0); /* nobody listens */
+    dev = mbfb_dev_open(mbfb_bus_open(&c), 1);
+    CHECK_EQ(t_run(dev, 3, 0, 1, NULL, v, 1), -MBFB_E_NOPORT);
+    mbfb_shutdown();
+}
+
+/* ---- port lost (USB adapter pulled) and back ------------------------------------- */
+static volatile int mute;
+static void mutable_peer(peer_t *p, int n, const uint8_t *f, int len, peer_reply_t *r)
+{
+    if (!mute)
+        peer_answer(p, n, f, len, r);
+}
+
+static void port_lost(void)
+{
+    int bus, dev, h[3];
+    uint16_t v[1];
+
+    t_scenario = "port lost";
+    mute = 0;
+    bus = open_bus(mutable_peer, PEER_RTU, 38400, 'N', 8, 1, MBFB_FRAMING_RTU, 2000, 3);
+    dev = mbfb_dev_open(bus, 1);
+    P.regs[1][0] = 11;
+    CHECK_EQ(t_run(dev, 3, 0, 1, NULL, v, 1), 1);
+    CHECK_EQ(v[0], 11);
+    mute = 1; /* the next request stays on the wire... */
+    for (int i = 0; i < 3; i++)
+        h[i] = mbfb_post(dev, 3, 0, 1, NULL);
+    t_sleep_ms(100);
+    CHECK_EQ(mbfb_poll(h[0]), MBFB_REQ_ACTIVE);
+    peer_stop(&P); /* ...when the port goes away */
+    for (int i = 0; i < 3; i++) { /* in flight and queued: all end, none silently */
+        CHECK_EQ(t_wait(h[i]), MBFB_REQ_FAILED);
+        CHECK_EQ(mbfb_take(h[i], v, 1), -MBFB_E_PORTLOST);
+    }
+    CHECK_EQ(t_run(dev, 3, 0, 1, NULL, v, 1), -MBFB_E_NOPORT); /* still gone */
+    mute = 0;
+    peer_start(&P, link_path(), PEER_RTU, mutable_peer, NULL); /* plugged back */
+    P.regs[1][0] = 22;
+    CHECK_EQ(t_run(dev, 3, 0, 1, NULL, v, 1), 1); /* reopened on the next request */
+    CHECK_EQ(v[0], 22);
+    teardown();
+}
+
+/* ---- several devices, one dead: back-off keeps the bus for the others -------------- */
+static void dead_device(void)
+{
+    int bus, d1, d2, d3, good1 = 0, good3 = 0, offline2 = 0, iters = 40;
+    int64_t end;
+    mbfb_diag_t dg;
+    uint16_t v[1];
+
+    t_scenario = "dead device";
+    bus = open_bus(peer_answer, PEER_RTU, 38400, 'N', 8, 1, MBFB_FRAMING_RTU, 100, 3);
+    d1 = mbfb_dev_open(bus, 1);
+    d2 = mbfb_dev_open(bus, 2);
+    d3 = mbfb_dev_open(bus, 3);
+    P.dead[2] = 1;
+    for (int i = 0; i < iters; i++) {
+        int h1 = mbfb_post(d1, 3, 0, 1, NULL), h2 = mbfb_post(d2, 3, 0, 1, NULL),
+            h3 = mbfb_post(d3, 3, 0, 1, NULL);
+        t_wait(h1), t_wait(h2), t_wait(h3);
+        good1 += mbfb_take(h1, v, 1) == 1;
+        offline2 += mbfb_take(h2, v, 1) == -MBFB_E_OFFLINE;
+        good3 += mbfb_take(h3, v, 1) == 1;
+    }
+    CHECK_EQ(good1, iters);
+    CHECK_EQ(good3, iters);
+    CHECK_EQ(peer_slave_count(&P, 1), iters); /* the healthy ones never needed a retry */
+    CHECK_EQ(peer_slave_count(&P, 3), iters);
+    /* without back-off slave 2 would have had iters * 4 = 160 frames; with it:
+     * 3 failed transactions of 4 attempts, then single-attempt probes */
+    CHECK(peer_slave_count(&P, 2) <= 3 * 4 + 4);
+    CHECK(peer_slave_count(&P, 2) >= 3 * 4);
+    CHECK(offline2 >= iters - 3 - 4);
+    CHECK_EQ(mbfb_dev_diag(d2, &dg), 0);
+    CHECK_EQ(dg.offline, 1);
+    CHECK_EQ(dg.good, 0);
+    printf("dead device: %d frames to the dead slave over %d rounds (%d without back-off)\n",
+           peer_slave_count(&P, 2), iters, iters * 4);
+    /* it comes back by itself when it answers again */
+    P.dead[2] = 0;
+    P.regs[2][0] = 77;
+    end = t_now_us() + 30000000;
+    while (t_now_us() < end && t_run(d2, 3, 0, 1, NULL, v, 1) != 1)
+        t_sleep_ms(50);
+    CHECK_EQ(v[0], 77);
+    CHECK_EQ(mbfb_dev_diag(d2, &dg), 0);
+    CHECK_EQ(dg.offline, 0);
+    CHECK_EQ(dg.good, 1);
+    CHECK_EQ(t_run(d2, 3, 0, 1, NULL, v, 1), 1);
+    teardown();
+}
+
+int main(void)
+{
+    manual_rtu();
+    manual_ascii();
+    manual_nocrc();
+    broadcast();
+    bad_args();
+    queue_cancel_handles();
+    conflicts();
+    no_port();
+    port_lost();
+    dead_device();
+    return t_done("test_bus");
+}

@@ -1,0 +1,222 @@
+/*
+ * test_frame.c - CRC-16, LRC and request frames against every worked frame of the
+ * manuals (../shared/spec/DEVICES.md sections 1.9, 2.8, 3.12 and 4), reply
+ * validation, argument checks, timing values, error texts. No I/O.
+ */
+#include <string.h>
+
+#include "mbfb_internal.h"
+#include "mbfb_test.h"
+
+/* Every RTU frame with its CRC, as printed (or derived) in DEVICES.md. */
+static const char *const rtu_frames[] = {
+    /* 1.9 SetPro MV-D94 / VD, printed in both manuals */
+    "01 03 00 00 00 01 84 0A", "01 03 02 03 E8 B8 FA", "01 04 10 00 00 01 35 0A",
+    "01 04 02 00 1B F9 3B", "01 06 00 00 01 F4 89 DD",
+    /* 1.9 derived */
+    "01 03 00 00 00 22 C5 D3", "01 06 00 0F 00 0C B9 CC", "01 06 00 0F 00 17 F9 C7",
+    "01 06 00 01 FF F6 19 BC", "00 06 00 00 01 F4 88 0C", "01 83 02 C0 F1",
+    "01 85 01 83 50",
+    /* 2.8 MT-S9 RTU, printed */
+    "01 03 00 00 00 02 C4 0B", "01 03 04 00 00 00 02 7B F2", "01 06 00 00 00 02 08 0B",
+    "01 10 00 00 00 02 04 00 0A 01 02 53 FC", "01 10 00 00 00 02 41 C8",
+    /* 2.8 no-CRC reply as corrected (FA 33 belongs to data 0000 0000), derived */
+    "01 03 04 00 00 00 00 FA 33", "01 03 00 00 00 0A C5 CD", "01 03 00 02 00 02 65 CB",
+    /* 3.12 FDC (address 01 assumed; CRCs computed, the manual prints none) */
+    "01 10 00 00 00 34 C1 DE", "01 03 00 80 00 04 45 E1", "01 03 00 40 00 04 45 DD",
+    "01 06 00 48 68 25 E7 C7", "01 06 00 48 68 28 26 02", "01 06 00 48 68 27 66 06",
+    "01 03 00 00 00 50 45 F6", "01 03 00 00 00 4F 04 3E", "01 06 00 48 68 2D E6 01",
+    "01 86 03 02 61", "01 81 01 81 90",
+};
+
+
+/* 2.5 / 4: MT-S9 ASCII frames; the FC16 query is printed with FA, DC is correct. */
+static const char *const ascii_frames[][2] = {
+    {":010300000002FA\r\n", "FA"},
+    {":01030407140714C2\r\n", "C2"},
+    {":010600000002F7\r\n", "F7"},
+    {":01100000000204000A0102DC\r\n", "DC"},
+    {":011000000002ED\r\n", "ED"},
+};
+
+static void test_crc(void)
+{
+    uint8_t f[PEER_BUF];
+    t_scenario = "crc";
+    CHECK_EQ(mbfb_crc16((const uint8_t *)"123456789", 9), 0x4B37); /* catalogue check */
+    for (size_t i = 0; i < sizeof rtu_frames / sizeof rtu_frames[0]; i++) {
+        int n = t_hex(rtu_frames[i], f);
+        uint16_t crc = mbfb_crc16(f, n - 2);
+        if ((crc & 0xFF) != f[n - 2] || (crc >> 8) != f[n - 1]) {
+            t_failures++;
+            fprintf(stderr, "FAIL crc of %s: computed %02X %02X\n", rtu_frames[i],
+                    crc & 0xFF, crc >> 8);
+        }
+        CHECK_EQ(peer_crc16(f, n - 2), crc); /* the test peer's CRC agrees */
+    }
+    int n = t_hex(fdc_ex1, f);
+    CHECK_EQ(n, 113);
+    CHECK_EQ(mbfb_crc16(f, n - 2), 0xC38E);
+    /* 2.3: the high-word-first candidate gives D3 94, not the printed 53 FC */
+    n = t_hex("01 10 00 00 00 02 04 01 02 00 0A", f);
+    CHECK_EQ(mbfb_crc16(f, n), 0x94D3);
+}
+
+static void test_lrc(void)
+{
+    uint8_t f[PEER_BUF], lrc[1];
+    char hex[PEER_BUF];
+    t_scenario = "lrc";
+    for (size_t i = 0; i < sizeof ascii_frames / sizeof ascii_frames[0]; i++) {
+        size_t len = strlen(ascii_frames[i][0]);
+        memcpy(hex, ascii_frames[i][0] + 1, len - 5); /* drop ':', LRC, CR LF */
+        hex[len - 5] = 0;
+        int n = t_hex(hex, f);
+        t_hex(ascii_frames[i][1], lrc);
+        CHECK_EQ(mbfb_lrc(f, n), lrc[0]);
+        CHECK_EQ(peer_lrc(f, n), lrc[0]);
+    }
+    /* the manual's misprint: FA is not the LRC of the FC16 query */
+    CHECK(mbfb_lrc(f, t_hex("01 10 00 00 00 02 04 00 0A 01 02", f)) != 0xFA);
+}
+
+/* mbfb_build_request + CRC reproduces the manuals' request frames byte for byte. */
+static void check_request(const char *want, int slave, int fc, int addr, int count,
+                          const uint16_t *vals)
+{
+    uint8_t f[PEER_BUF];
+    int n = mbfb_build_request(f, slave, fc, addr, count, vals);
+    uint16_t crc = mbfb_crc16(f, n);
+    f[n++] = (uint8_t)(crc & 0xFF);
+    f[n++] = (uint8_t)(crc >> 8);
+    CHECK_HEX(f, n, want);
+}
+
+static void test_requests(void)
+{
+    uint16_t v[60];
+    uint8_t b[PEER_BUF];
+    t_scenario = "requests";
+    check_request("01 03 00 00 00 01 84 0A", 1, 3, 0, 1, NULL);
+    check_request("01 04 10 00 00 01 35 0A", 1, 4, 0x1000, 1, NULL);
+    v[0] = 500;
+    check_request("01 06 00 00 01 F4 89 DD", 1, 6, 0, 1, v);
+    check_request("00 06 00 00 01 F4 88 0C", 0, 6, 0, 1, v);
+    v[0] = (uint16_t)-10;
+    check_request("01 06 00 01 FF F6 19 BC", 1, 6, 1, 1, v);
+    v[0] = 16908298u & 0xFFFF; /* MT-S9: low word first */
+    v[1] = 16908298u >> 16;
+    check_request("01 10 00 00 00 02 04 00 0A 01 02 53 FC", 1, 16, 0, 2, v);
+    v[0] = 0x6825;
+    check_request("01 06 00 48 68 25 E7 C7", 1, 6, 72, 1, v);
+    check_request("01 03 00 00 00 50 45 F6", 1, 3, 0, 80, NULL);
+    int n = t_hex(fdc_ex1, b);
+    for (int i = 0; i < 52; i++)
+        v[i] = (uint16_t)(b[7 + 2 * i] << 8 | b[8 + 2 * i]);
+    check_request(fdc_ex1, 1, 16, 0, 52, v);
+    CHECK_EQ(n, 113);
+}
+
+static int check_reply_hex(const char *req_hex, const char *rsp_hex)
+{
+    uint8_t q[PEER_BUF], r[PEER_BUF];
+    t_hex(req_hex, q);
+    return mbfb_check_reply(q, r, t_hex(rsp_hex, r));
+}
+
+static void test_validation(void)
+{
+    t_scenario = "validation";
+    CHECK_EQ(check_reply_hex("01 03 00 00 00 01", "01 03 02 03 E8"), MBFB_OK);
+    CHECK_EQ(check_reply_hex("01 04 10 00 00 01", "01 04 02 00 1B"), MBFB_OK);
+    CHECK_EQ(check_reply_hex("01 06 00 00 01 F4", "01 06 00 00 01 F4"), MBFB_OK);
+    CHECK_EQ(check_reply_hex("01 10 00 00 00 02 04 00 0A 01 02", "01 10 00 00 00 02"),
+             MBFB_OK);
+    /* wrong slave, wrong function, byte count, length, echoes */
+    CHECK_EQ(check_reply_hex("01 03 00 00 00 01", "02 03 02 03 E8"), MBFB_E_BADREPLY);
+    CHECK_EQ(check_reply_hex("01 03 00 00 00 01", "01 04 02 03 E8"), MBFB_E_BADREPLY);
+    CHECK_EQ(check_reply_hex("01 03 00 00 00 02", "01 03 02 03 E8"), MBFB_E_BADREPLY);
+    CHECK_EQ(check_reply_hex("01 03 00 00 00 01", "01 03 04 03 E8"), MBFB_E_BADREPLY);
+    CHECK_EQ(check_reply_hex("01 03 00 00 00 01", "01 03 02 03"), MBFB_E_BADREPLY);
+    CHECK_EQ(check_reply_hex("01 06 00 00 01 F4", "01 06 00 00 01 F5"), MBFB_E_BADREPLY);
+    CHECK_EQ(check_reply_hex("01 06 00 00 01 F4", "01 06 00 01 01 F4"), MBFB_E_BADREPLY);
+    CHECK_EQ(check_reply_hex("01 10 00 00 00 02 04 00 0A 01 02", "01 10 00 00 00 03"),
+             MBFB_E_BADREPLY);
+    CHECK_EQ(check_reply_hex("01 10 00 00 00 02 04 00 0A 01 02", "01 10 00 00 00"),
+             MBFB_E_BADREPLY);
+    /* exceptions (DEVICES.md 1.9, 3.12) */
+    CHECK_EQ(check_reply_hex("01 03 00 00 00 01", "01 83 02"), 130);
+    CHECK_EQ(check_reply_hex("01 06 00 48 68 25", "01 86 03"), 131);
+    CHECK_EQ(check_reply_hex("01 03 00 00 00 01", "01 86 03"), MBFB_E_BADREPLY);
+    CHECK_EQ(check_reply_hex("01 03 00 00 00 01", "01 83 02 00"), MBFB_E_BADREPLY);
+    CHECK_EQ(check_reply_hex("01 03 00 00 00 01", "01 83 00"), MBFB_E_BADREPLY);
+}
+
+static void test_args(void)
+{
+    uint16_t v[130] = {0};
+    t_scenario = "args";
+    CHECK_EQ(mbfb_check_args(1, 3, 0, 1, NULL), MBFB_OK);
+    CHECK_EQ(mbfb_check_args(1, 3, 0, 125, NULL), MBFB_OK);
+    CHECK_EQ(mbfb_check_args(1, 3, 0, 126, NULL), MBFB_E_INVAL);
+    CHECK_EQ(mbfb_check_args(1, 4, 0, 0, NULL), MBFB_E_INVAL);
+    CHECK_EQ(mbfb_check_args(0, 3, 0, 1, NULL), MBFB_E_INVAL); /* broadcast read */
+    CHECK_EQ(mbfb_check_args(0, 6, 0, 1, v), MBFB_OK);
+    CHECK_EQ(mbfb_check_args(1, 6, 0, 1, NULL), MBFB_E_INVAL);
+    CHECK_EQ(mbfb_check_args(1, 6, 0, 2, v), MBFB_E_INVAL);
+    CHECK_EQ(mbfb_check_args(1, 16, 0, 123, v), MBFB_OK);
+    CHECK_EQ(mbfb_check_args(1, 16, 0, 124, v), MBFB_E_INVAL);
+    CHECK_EQ(mbfb_check_args(1, 5, 0, 1, v), MBFB_E_INVAL);
+    CHECK_EQ(mbfb_check_args(1, 3, 65535, 1, NULL), MBFB_OK);
+    CHECK_EQ(mbfb_check_args(1, 3, 65535, 2, NULL), MBFB_E_INVAL);
+    CHECK_EQ(mbfb_check_args(1, 3, -1, 1, NULL), MBFB_E_INVAL);
+}
+
+static void test_timing(void)
+{
+    mbfb_timing_t t;
+    t_scenario = "timing";
+    mbfb_timing_init(&t, 9600, 'N', 8, 2); /* SetPro 8N2: 11 bits */
+    CHECK_EQ(t.char_us, 1146);
+    CHECK_EQ(t.gap_us, 4584);   /* 44 bit times > 3.5 chars (4011 us) */
+    CHECK_EQ(mbfb_response_timeout_us(&t, MBFB_FRAMING_RTU, 6, 5), 54380);
+    CHECK(mbfb_response_timeout_us(&t, MBFB_FRAMING_RTU, 6, 253) > 600000);
+    mbfb_timing_init(&t, 2400, 'N', 8, 2);
+    CHECK(mbfb_response_timeout_us(&t, MBFB_FRAMING_RTU, 6, 5) >= 150000);
+    mbfb_timing_init(&t, 19200, 'E', 8, 1);
+    CHECK_EQ(t.char_us, 573);
+    CHECK_EQ(t.gap_us, 2292);
+    CHECK_EQ(mbfb_response_timeout_us(&t, MBFB_FRAMING_RTU, 6, 5), 50000);
+    mbfb_timing_init(&t, 115200, 'N', 8, 1);
+    CHECK_EQ(t.gap_us, 1750); /* Modbus: fixed 1.75 ms above 19200 baud */
+    mbfb_timing_init(&t, 9600, 'E', 7, 1);   /* ASCII 7E1: 10 bits */
+    CHECK_EQ(t.char_us, 1042);
+    CHECK_EQ(mbfb_wire_len(MBFB_FRAMING_ASCII, 6), 17); /* ":010300000002FA\r\n" */
+    CHECK_EQ(mbfb_wire_len(MBFB_FRAMING_RTU_NOCRC, 6), 8);
+}
+
+static void test_strerror(void)
+{
+    t_scenario = "strerror";
+    for (int i = 0; i <= MBFB_E_NOMEM; i++) {
+        CHECK(mbfb_strerror(i) != NULL && mbfb_strerror(i)[0] != 0);
+        CHECK(strcmp(mbfb_strerror(i), mbfb_strerror(-i)) == 0);
+        if (i > 0)
+            CHECK(strcmp(mbfb_strerror(i), mbfb_strerror(i - 1)) != 0);
+    }
+    CHECK(strstr(mbfb_strerror(-130), "illegal data address") != NULL);
+    CHECK(strstr(mbfb_strerror(210), "input") != NULL);
+    CHECK(mbfb_strerror(99999) != NULL);
+}
+
+int main(void)
+{
+    test_crc();
+    test_lrc();
+    test_requests();
+    test_validation();
+    test_args();
+    test_timing();
+    test_strerror();
+    return t_done("test_frame");
+}
