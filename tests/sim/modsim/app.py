@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import glob
 import json
 import os
 import random
@@ -38,6 +39,9 @@ def parse_args(argv):
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--faults", metavar="FILE", help="JSON list of control requests/faults")
     p.add_argument("--control", metavar="PATH", help="Unix socket of the control protocol")
+    p.add_argument("--ptyline", metavar="PATH", help="mbfb-ptyline binary for --pty --pace "
+                   "(default: $MBFB_PTYLINE, else build*/tests/sim/ptyline/mbfb-ptyline; "
+                   "'none': pace replies inside the simulator)")
     args = p.parse_args(argv)
     if not args.device:
         p.error("at least one --device is required")
@@ -100,6 +104,24 @@ def build(args):
     return line, devices
 
 
+def find_ptyline(given: str | None) -> str | None:
+    """The ptyline binary: --ptyline, $MBFB_PTYLINE, or the newest build*/ of this checkout."""
+    if given == "none":
+        return None
+    if given:
+        if not os.access(given, os.X_OK):
+            raise ValueError(f"--ptyline {given}: not an executable")
+        return given
+    env = os.environ.get("MBFB_PTYLINE")
+    if env and os.access(env, os.X_OK):
+        return env
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(
+        os.path.abspath(__file__)))))
+    found = glob.glob(os.path.join(root, "build*", "tests", "sim", "ptyline", "mbfb-ptyline"))
+    found = [f for f in found if os.access(f, os.X_OK)]
+    return max(found, key=os.path.getmtime) if found else None
+
+
 class App:
     """Bus + transport + control socket + the clock of the dynamics."""
 
@@ -111,17 +133,19 @@ class App:
             self.transport = TcpLine(self.bus, host or "127.0.0.1", int(port))
             self.transport_kind = "tcp"
         else:
+            ptyline = find_ptyline(args.ptyline) if args.pace and args.pty else None
+            if args.pace and args.pty and ptyline is None:
+                print("mbsim: note: mbfb-ptyline not found; --pace paces replies only and "
+                      "line statistics are unavailable", file=sys.stderr)
             self.transport = SerialLine(self.bus, device=args.serial, link=args.link,
-                                        pace=args.pace, seed=args.seed)
+                                        pace=args.pace, seed=args.seed, ptyline=ptyline)
             self.transport_kind = "serial"
         self.control = Control(self)
         self.ready_line = None
         self.stopping = asyncio.Event()
 
     def line_stats(self) -> dict:
-        return {"available": False,
-                "why": "line statistics come from tests/sim/ptyline (run it between master "
-                       "and simulator); the simulator's own counters are in 'stats'"}
+        return self.transport.line_stats()
 
     async def ticker(self):
         last = time.monotonic()

@@ -9,10 +9,15 @@ offers none of these hooks (its RTU framer even warns it does not support multid
 from __future__ import annotations
 
 import asyncio
+import json
 import os
 import random
+import signal
 import struct
+import subprocess
+import tempfile
 import termios
+import time
 import tty
 
 from . import frames
@@ -26,7 +31,7 @@ class SerialLine:
     """One RS-485 line on a pty (`--pty`) or a serial device (`--serial`)."""
 
     def __init__(self, bus, device: str | None = None, link: str | None = None,
-                 pace: bool = False, seed: int = 0):
+                 pace: bool = False, seed: int = 0, ptyline: str | None = None):
         self.bus = bus
         self.line = bus.line
         self.device = device            # None: create a pty
@@ -41,6 +46,11 @@ class SerialLine:
         self.wlock = asyncio.Lock()
         self.generation = 0             # replies scheduled before a reopen are not sent after it
         self.counters = {"tx_overflow": 0}
+        self.seed = seed
+        # With --pace on a pty, the line is tests/sim/ptyline (paced both ways, with line
+        # statistics); the simulator then only answers on its S side and does not pace itself.
+        self.ptyline = PtyLine(ptyline, self.line, seed) if ptyline and pace and not device \
+            else None
 
     # ----- open / close -----
     async def start(self) -> str:
@@ -48,7 +58,13 @@ class SerialLine:
         return f"PTY {self.link or self.path}" if self.device is None else f"SERIAL {self.path}"
 
     def _open(self):
-        if self.device is None:
+        if self.ptyline is not None:
+            master_path, slave_path = self.ptyline.start()
+            self.fd = os.open(slave_path, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+            tty.setraw(self.fd)
+            self.path = master_path
+            self._relink()
+        elif self.device is None:
             self.fd, self.slave_fd = os.openpty()
             # Raw mode before any master opens the pty: no echo, no line editing, no CR/LF
             # translation. The slave end stays open here so the pty survives masters that
@@ -60,12 +76,7 @@ class SerialLine:
                 attrs[4] = attrs[5] = speed
                 termios.tcsetattr(self.slave_fd, termios.TCSANOW, attrs)
             self.path = os.ttyname(self.slave_fd)
-            if self.link:
-                tmp = f"{self.link}.tmp{os.getpid()}"
-                if os.path.lexists(tmp):
-                    os.unlink(tmp)
-                os.symlink(self.path, tmp)
-                os.replace(tmp, self.link)
+            self._relink()
         else:
             import serial  # pyserial, pinned in requirements.txt
             self.ser = serial.Serial(self.device, self.line.baud, bytesize=self.line.data_bits,
@@ -75,6 +86,15 @@ class SerialLine:
             self.path = self.device
         os.set_blocking(self.fd, False)
         asyncio.get_running_loop().add_reader(self.fd, self._readable)
+
+    def _relink(self):
+        """Point --link at the current port (atomically, so it is never missing)."""
+        if self.link:
+            tmp = f"{self.link}.tmp{os.getpid()}"
+            if os.path.lexists(tmp):
+                os.unlink(tmp)
+            os.symlink(self.path, tmp)
+            os.replace(tmp, self.link)
 
     def close(self, remove_link: bool = True):
         if self.fd is None:
@@ -89,7 +109,10 @@ class SerialLine:
             self.ser = None
         else:
             os.close(self.fd)
-            os.close(self.slave_fd)
+            if self.slave_fd is not None:
+                os.close(self.slave_fd)
+        if self.ptyline is not None:
+            self.ptyline.stop()
         self.fd = self.slave_fd = None
         if remove_link and self.link and os.path.islink(self.link):
             os.unlink(self.link)
@@ -205,8 +228,14 @@ class SerialLine:
         asyncio.ensure_future(self._send(out, delay, info, self.generation))
 
     # ----- transmit: whole frame, or paced at the character time with a turnaround -----
+    def line_stats(self) -> dict:
+        if self.ptyline is None:
+            return {"available": False, "why": "line statistics need --pty --pace with "
+                    "tests/sim/ptyline built (--ptyline PATH or MBFB_PTYLINE)"}
+        return {"available": True, "stats": self.ptyline.stats()}
+
     async def _send(self, data: bytes, delay: float, info: str, generation: int):
-        if self.pace:
+        if self.pace and self.ptyline is None:
             delay += self.line.t35 + self.rng.uniform(0.001, 0.010)   # 1..10 ms turnaround
         if delay > 0:
             await asyncio.sleep(delay)
@@ -242,6 +271,57 @@ class SerialLine:
         return True
 
 
+class PtyLine:
+    """The ptyline program (tests/sim/ptyline) as the simulator's paced RS-485 line."""
+
+    def __init__(self, binary: str, line, seed: int):
+        self.binary, self.line, self.seed = binary, line, seed
+        self.proc = None
+        self.stats_path = os.path.join(tempfile.mkdtemp(prefix="mbsim-line-"), "line.json")
+
+    def start(self) -> tuple[str, str]:
+        """Start it; returns (master side path, simulator side path)."""
+        fmt = f"{self.line.data_bits}{self.line.parity}{self.line.stop_bits}"
+        self.proc = subprocess.Popen(
+            [self.binary, "--baud", str(self.line.baud), "--format", fmt,
+             "--turnaround-ms", "1:10", "--seed", str(self.seed), "--stats", self.stats_path],
+            stdout=subprocess.PIPE, stdin=subprocess.DEVNULL)
+        sides = {}
+        while len(sides) < 2:
+            text = self.proc.stdout.readline().decode().split()
+            if len(text) != 2:
+                self.stop()
+                raise OSError("ptyline did not start")
+            sides[text[0]] = text[1]
+        return sides["M"], sides["S"]
+
+    def stop(self):
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.send_signal(signal.SIGTERM)
+            try:
+                self.proc.wait(5)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        if self.proc is not None:
+            self.proc.stdout.close()
+        self.proc = None
+
+    def stats(self) -> dict:
+        """Fresh statistics: SIGUSR1 makes ptyline rewrite its stats file."""
+        if self.proc is None:
+            raise OSError("the line is down")
+        before = os.stat(self.stats_path).st_mtime_ns if os.path.exists(self.stats_path) else 0
+        self.proc.send_signal(signal.SIGUSR1)
+        end = time.monotonic() + 2.0
+        while time.monotonic() < end:
+            if os.path.exists(self.stats_path) and os.stat(self.stats_path).st_mtime_ns != before:
+                with open(self.stats_path, encoding="utf-8") as fh:
+                    return json.load(fh)
+            time.sleep(0.005)
+        raise OSError("ptyline did not write its statistics")
+
+
 class TcpLine:
     """Modbus/TCP server on 127.0.0.1: MBAP unit id = slave address (MBAP by hand: 7 bytes)."""
 
@@ -252,6 +332,9 @@ class TcpLine:
         self.server = None
         self.writers = set()
         self.counters = {}
+
+    def line_stats(self) -> dict:
+        return {"available": False, "why": "no RS-485 line on Modbus/TCP"}
 
     async def start(self) -> str:
         self.server = await asyncio.start_server(self._client, self.host, self.port)

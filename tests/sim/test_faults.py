@@ -1,0 +1,189 @@
+"""Each fault kind of the simulator is shown to happen as asked (issue item 4)."""
+import json
+import os
+import time
+
+import minimalmodbus
+import pytest
+
+from conftest import crc, frames, instrument
+import simctl
+
+sim = simctl.fixture(["mvd94:1:SV=1000", "mvd94:2", "mts9:5"], seed=42)
+
+READ = crc("01 03 00 00 00 01")
+GOOD = "01 03 02 03 E8 B8 FA"
+
+
+def hexu(data):
+    return data.hex(" ").upper()
+
+
+@pytest.fixture(autouse=True)
+def _clear(sim):
+    for addr in (1, 2, 5):
+        sim.ctl("fault", addr=addr, kind="clear")
+        sim.ctl("offline", addr=addr, on=False)
+    sim.log(clear=True)
+
+
+def test_drop_still_applies_the_request(sim, raw_factory):
+    raw = raw_factory(sim.port)
+    sim.ctl("fault", addr=1, kind="drop")
+    assert raw.xfer(crc("01 06 00 01 00 05")) == b""
+    assert sim.ctl("get", addr=1, reg="SPOF")["raw"] == 5
+    assert hexu(raw.xfer(READ)) == GOOD                   # count 1: next reply is normal
+    sim.ctl("set", addr=1, reg="SPOF", raw=0)
+    assert sim.ctl("stats")["devices"]["1"]["faults"] == {"drop": 1}
+
+
+def test_bad_crc_is_seen_by_minimalmodbus(sim):
+    sim.ctl("fault", addr=1, kind="bad_crc")
+    with pytest.raises(minimalmodbus.InvalidResponseError, match="Checksum error"):
+        instrument(sim.port, 1).read_register(0)
+    tx = [h for d, h in frames(sim) if d == "tx"][0]
+    assert tx[:14] == GOOD[:14] and tx != GOOD
+
+
+def test_late_reply_arrives_after_the_timeout(sim, raw_factory):
+    raw = raw_factory(sim.port)
+    sim.ctl("fault", addr=1, kind="late", delay_ms=600)
+    t0 = time.monotonic()
+    assert raw.xfer(READ, wait=0.3) == b""                 # a 300 ms master times out
+    late = raw.xfer(b"", wait=0.6)                          # ... and the reply comes later
+    assert hexu(late) == GOOD
+    assert time.monotonic() - t0 >= 0.6
+
+
+def test_wrong_slave_has_a_valid_crc(sim, raw_factory):
+    sim.ctl("fault", addr=1, kind="wrong_slave", slave=9)
+    assert hexu(raw_factory(sim.port).xfer(READ)) == crc("09 03 02 03 E8")
+    with pytest.raises(minimalmodbus.InvalidResponseError):
+        sim.ctl("fault", addr=1, kind="wrong_slave")
+        instrument(sim.port, 1).read_register(0)
+
+
+def test_truncate_and_noise(sim, raw_factory):
+    raw = raw_factory(sim.port)
+    sim.ctl("fault", addr=1, kind="truncate", keep=3)
+    assert hexu(raw.xfer(READ)) == GOOD[:8]
+    sim.ctl("fault", addr=1, kind="noise", bytes=4, where="before")
+    got = raw.xfer(READ)
+    assert len(got) == 11 and hexu(got[4:]) == GOOD
+    sim.ctl("fault", addr=1, kind="noise", bytes=2, where="both")
+    got = raw.xfer(READ)
+    assert len(got) == 11 and hexu(got[2:9]) == GOOD
+
+
+def test_exception_is_not_applied(sim, raw_factory):
+    raw = raw_factory(sim.port)
+    sim.ctl("fault", addr=1, kind="exception", code=4)
+    assert hexu(raw.xfer(crc("01 06 00 00 00 07"))) == crc("01 86 04")
+    assert sim.ctl("get", addr=1, reg="SV")["raw"] == 1000
+    sim.ctl("fault", addr=1, kind="exception", code=6, count=2)
+    with pytest.raises(minimalmodbus.SlaveDeviceBusyError):
+        instrument(sim.port, 1).read_register(0)
+
+
+def test_count_skip_and_only_that_device(sim, raw_factory):
+    raw = raw_factory(sim.port)
+    sim.ctl("fault", addr=1, kind="drop", count=2, skip=1)
+    results = [hexu(raw.xfer(READ, wait=0.15)) for _ in range(4)]
+    assert results == [GOOD, "", "", GOOD]
+    sim.ctl("fault", addr=1, kind="drop", count=-1)
+    assert raw.xfer(READ, wait=0.15) == b"" and raw.xfer(READ, wait=0.15) == b""
+    assert hexu(raw.xfer(crc("02 03 00 00 00 01"))) == crc("02 03 02 00 64")
+
+
+def _pattern(seed):
+    with simctl.Simulator(["mvd94:1"], seed=seed) as s:
+        raw = simctl_raw(s.port)
+        try:
+            s.ctl("fault", addr=1, kind="drop", prob=0.5, count=-1)
+            return "".join("x" if raw.xfer(READ, wait=0.1) == b"" else "." for _ in range(16))
+        finally:
+            raw.close()
+
+
+def simctl_raw(port):
+    from conftest import RawPort
+    return RawPort(port)
+
+
+def test_random_faults_are_seeded():
+    a, b, c = _pattern(7), _pattern(7), _pattern(8)
+    assert a == b and "x" in a and "." in a
+    assert a != c
+
+
+def test_ascii_bad_lrc(raw_factory):
+    with simctl.Simulator(["mts9:1:framing=ascii"], fmt="8N1") as s:
+        import serial
+        ser = serial.Serial(s.port, 9600, timeout=0.5)
+        try:
+            s.ctl("fault", addr=1, kind="bad_crc")
+            ser.write(b":010300090001F2\r\n")
+            got = ser.read_until(b"\n")
+            assert got.startswith(b":01030200") and got != b":0103020000FA\r\n"
+        finally:
+            ser.close()
+
+
+def test_offline_and_power_cycle(sim, raw_factory):
+    raw = raw_factory(sim.port)
+    sim.ctl("offline", addr=1, on=True)
+    assert raw.xfer(crc("01 06 00 01 00 05")) == b""
+    assert sim.ctl("get", addr=1, reg="SPOF")["raw"] == 0   # an unplugged unit applies nothing
+    sim.ctl("offline", addr=1, on=False)
+    assert hexu(raw.xfer(READ)) == GOOD
+    # power cycle with a boot time: silent meanwhile, then back
+    sim.ctl("set", addr=5, reg="Author", raw=3)
+    reply = {}
+    import threading
+    th = threading.Thread(target=lambda: reply.update(
+        sim.control({"op": "power_cycle", "addr": 5, "down_ms": 800})))
+    th.start()
+    time.sleep(0.2)
+    assert raw.xfer(crc("05 03 00 09 00 01")) == b""
+    th.join()
+    assert reply["ok"]
+    assert hexu(raw.xfer(crc("05 03 00 09 00 01"))) == crc("05 03 02 00 00")   # Author reset
+
+
+def test_reopen_port_keeps_the_link(tmp_path):
+    link = str(tmp_path / "line")
+    with simctl.Simulator(["mvd94:1:SV=1000"], link=link) as s:
+        assert s.port == link and os.path.realpath(link).startswith("/dev/pts/")
+        old = simctl_raw(link)
+        assert hexu(old.xfer(READ)) == GOOD
+        reply = s.ctl("reopen_port", down_ms=300)
+        assert reply["port"] == link
+        with pytest.raises(Exception):                      # the old handle is dead
+            old.xfer(READ)
+            old.ser.read(1)
+        old.close()
+        new = simctl_raw(link)
+        assert hexu(new.xfer(READ)) == GOOD
+        new.close()
+
+
+def test_faults_file_scripted(tmp_path):
+    script = [{"addr": 1, "kind": "exception", "code": 4},
+              {"op": "offline", "addr": 1, "on": True, "at_ms": 700}]
+    with simctl.Simulator(["mvd94:1:SV=1000"], faults=script) as s:
+        raw = simctl_raw(s.port)
+        try:
+            assert hexu(raw.xfer(READ)) == crc("01 83 04")
+            assert hexu(raw.xfer(READ)) == GOOD
+            time.sleep(0.8)
+            assert raw.xfer(READ) == b""
+        finally:
+            raw.close()
+
+
+def test_bad_fault_requests_are_refused(sim):
+    assert not sim.control({"op": "fault", "addr": 1, "kind": "melt"})["ok"]
+    assert not sim.control({"op": "fault", "addr": 3, "kind": "drop"})["ok"]
+    assert not sim.control({"op": "fault", "addr": 1, "kind": "drop", "prob": 2})["ok"]
+    assert sim.ctl("stats")["devices"]["1"]["faults_pending"] == 0
+    assert json.dumps(sim.ctl("stats"))
