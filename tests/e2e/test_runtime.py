@@ -1,0 +1,111 @@
+"""The issue's end-to-end scenario, in the real OpenPLC v3 runtime: plc_lib installed into a
+scratch copy, the ST example compiled by OpenPLC's compile_program.sh, the runtime core running
+with its Modbus TCP server on loopback (private namespace), the simulator on a pty, and pymodbus
+as an independent client of the PLC."""
+import os
+import sys
+import time
+
+import pytest
+
+import oplc
+
+sys.path.insert(0, os.path.join(oplc.ROOT, "tests", "sim"))
+from simctl import Simulator  # noqa: E402
+
+EXAMPLE = os.path.join(oplc.ROOT, "examples", "heat_treat_st", "heat_treat_st.st")
+PORT = 5502
+# Holding registers / coils of the example (see its header comment).
+Z1PV, Z1SV, Z1ERR, Z2PV, Z2SV, Z2ERR, COUNT, COUNTERR, BEAT = range(9)
+Z2SPREQ = 1025
+C_Z1VALID, C_Z2VALID, C_Z2QUIET, C_PARTSVALID, C_ANY = 0, 3, 5, 6, 8
+
+
+def wait(pred, timeout, what):
+    end = time.monotonic() + timeout
+    while True:
+        v = pred()
+        if v:
+            return v
+        if time.monotonic() > end:
+            raise AssertionError(f"timed out after {timeout}s waiting for {what}")
+        time.sleep(0.1)
+
+
+@pytest.fixture(scope="module")
+def plant(tmp_path_factory, dist):
+    tmp = tmp_path_factory.mktemp("rt")
+    bus = str(tmp / "bus")
+    with Simulator(oplc.EXAMPLE_DEVICES, link=bus, time_scale=30.0, seed=1) as sim, \
+            oplc.Scratch() as plc:
+        plc.install(dist)
+        plc.compile(oplc.retarget(EXAMPLE, str(tmp / "heat_treat.st"), bus))
+        plc.start(modbus_port=PORT)
+        client = oplc.PlcClient(PORT)
+        try:
+            yield sim, plc, client
+        finally:
+            client.close()
+            print(f"requests retried on OpenPLC's Modbus server: {client.retried}")
+            print(plc.runtime_log()[-3000:])
+
+
+def hr(client, addr, count=1):
+    return client.hr(addr, count)
+
+
+def coils(client, count=9):
+    return client.coils(count)
+
+
+def s16(v):
+    return v - 65536 if v >= 32768 else v
+
+
+def test_plc_shows_the_simulators_values(plant):
+    sim, plc, client = plant
+    wait(lambda: all(coils(client)[i] for i in (C_Z1VALID, C_Z2VALID, C_PARTSVALID)), 30,
+         "all three devices valid")
+    b0 = hr(client, BEAT)[0]
+    wait(lambda: hr(client, BEAT)[0] != b0, 5, "the scan heartbeat to move")
+    # Set points do not move by themselves: they must be equal.
+    assert hr(client, Z2SV)[0] == sim.ctl("get", addr=2, reg="SV")["raw"]  # DP=1: raw = x10
+    assert s16(hr(client, Z1SV)[0]) == round(10 * sim.ctl("get", addr=1, reg="SP1")["eng"])
+    # PV and count move: the PLC's value lies between two simulator readings around it.
+    lo = sim.ctl("get", addr=2, reg="PV")["raw"]
+    mid = s16(hr(client, Z2PV)[0])
+    hi = sim.ctl("get", addr=2, reg="PV")["raw"]
+    assert min(lo, hi) - 50 <= mid <= max(lo, hi) + 50, (lo, mid, hi)
+    c = hr(client, COUNT)[0]
+    assert 0 < c <= sim.ctl("get", addr=3, reg="VALUE")["raw"] & 0xFFFF
+    assert hr(client, Z1ERR)[0] == hr(client, Z2ERR)[0] == hr(client, COUNTERR)[0] == 0
+
+
+def test_set_point_reaches_the_instrument_and_pv_follows(plant):
+    sim, plc, client = plant
+    wait(lambda: coils(client)[C_Z2VALID], 30, "zone 2 valid")
+    new = 1500  # 150.0
+    assert sim.ctl("get", addr=2, reg="SV")["raw"] != new
+    t0 = time.monotonic()
+    client.write(Z2SPREQ, new)
+    wait(lambda: sim.ctl("get", addr=2, reg="SV")["raw"] == new, 10, "SV to reach the MV-D94")
+    print(f"set point reached the simulated MV-D94 {time.monotonic() - t0:.2f} s after the Modbus write")
+    wait(lambda: hr(client, Z2SV)[0] == new, 10, "the PLC to read back the new SV")
+    wait(lambda: abs(s16(hr(client, Z2PV)[0]) - new) < 50, 120, "PV to follow the new set point")
+
+
+def test_pulled_device_is_reported_and_recovers(plant):
+    sim, plc, client = plant
+    wait(lambda: coils(client)[C_Z2VALID], 30, "zone 2 valid")
+    sim.ctl("offline", addr=2, on=True)
+    try:
+        wait(lambda: coils(client)[C_Z2QUIET] and not coils(client)[C_Z2VALID], 30,
+             "the PLC to report zone 2 quiet")
+        assert hr(client, Z2ERR)[0] != 0, "ErrorID must say why"
+        assert coils(client)[C_ANY]
+        assert coils(client)[C_Z1VALID], "the other devices on the bus keep working"
+    finally:
+        sim.ctl("offline", addr=2, on=False)
+    wait(lambda: coils(client)[C_Z2VALID] and not coils(client)[C_Z2QUIET], 60,
+         "zone 2 to recover")
+    wait(lambda: hr(client, Z2ERR)[0] == 0, 10, "ErrorID to clear")
