@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import socket
 import subprocess
@@ -105,8 +106,12 @@ class Simulator:
         thread.join(self.start_timeout)
         line = result.get("line", "")
         if not line.split(" ")[0] in ("PTY", "SERIAL", "TCP"):
+            if self.proc.poll() is None:
+                self.proc.kill()
+            self.proc.wait()
+            err = self.stderr()
             self.stop()
-            raise SimulatorError(f"simulator did not start: {line!r}\n{self.stderr()}")
+            raise SimulatorError(f"simulator did not start: {line!r}\n{err}")
         return line
 
     def stderr(self) -> str:
@@ -132,6 +137,7 @@ class Simulator:
                 self.proc.wait()
         if self.proc.stdout:
             self.proc.stdout.close()
+        shutil.rmtree(self.tmp, ignore_errors=True)
         return self.proc.returncode
 
     def __enter__(self):

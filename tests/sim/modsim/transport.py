@@ -12,6 +12,7 @@ import asyncio
 import json
 import os
 import random
+import shutil
 import signal
 import struct
 import subprocess
@@ -112,7 +113,7 @@ class SerialLine:
             if self.slave_fd is not None:
                 os.close(self.slave_fd)
         if self.ptyline is not None:
-            self.ptyline.stop()
+            self.ptyline.stop(final=remove_link)
         self.fd = self.slave_fd = None
         if remove_link and self.link and os.path.islink(self.link):
             os.unlink(self.link)
@@ -271,6 +272,12 @@ class SerialLine:
         return True
 
 
+def _die_with_parent():
+    """In the ptyline child: SIGTERM when the simulator dies, even by SIGKILL (Linux prctl)."""
+    import ctypes
+    ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)   # PR_SET_PDEATHSIG
+
+
 class PtyLine:
     """The ptyline program (tests/sim/ptyline) as the simulator's paced RS-485 line."""
 
@@ -285,7 +292,7 @@ class PtyLine:
         self.proc = subprocess.Popen(
             [self.binary, "--baud", str(self.line.baud), "--format", fmt,
              "--turnaround-ms", "1:10", "--seed", str(self.seed), "--stats", self.stats_path],
-            stdout=subprocess.PIPE, stdin=subprocess.DEVNULL)
+            stdout=subprocess.PIPE, stdin=subprocess.DEVNULL, preexec_fn=_die_with_parent)
         sides = {}
         while len(sides) < 2:
             text = self.proc.stdout.readline().decode().split()
@@ -295,7 +302,8 @@ class PtyLine:
             sides[text[0]] = text[1]
         return sides["M"], sides["S"]
 
-    def stop(self):
+    def stop(self, final: bool = True):
+        """Stop the line program; final: also remove its statistics directory."""
         if self.proc is not None and self.proc.poll() is None:
             self.proc.send_signal(signal.SIGTERM)
             try:
@@ -306,6 +314,8 @@ class PtyLine:
         if self.proc is not None:
             self.proc.stdout.close()
         self.proc = None
+        if final:
+            shutil.rmtree(os.path.dirname(self.stats_path), ignore_errors=True)
 
     def stats(self) -> dict:
         """Fresh statistics: SIGUSR1 makes ptyline rewrite its stats file."""
