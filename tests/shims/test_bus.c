@@ -421,7 +421,7 @@ static void dead_device(void)
     uint16_t v[1];
 
     t_scenario = "dead device";
-    bus = open_bus(peer_answer, PEER_RTU, 38400, 'N', 8, 1, MBFB_FRAMING_RTU, 100, 3);
+    bus = open_bus(peer_answer, PEER_RTU, 38400, 'N', 8, 1, MBFB_FRAMING_RTU, 200, 3);
     d1 = mbfb_dev_open(bus, 1);
     d2 = mbfb_dev_open(bus, 2);
     d3 = mbfb_dev_open(bus, 3);

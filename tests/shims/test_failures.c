@@ -9,7 +9,7 @@
 
 #include "mbfb_test.h"
 
-#define T_MS 150 /* response timeout used here: generous for a loaded machine */
+#define T_MS 200 /* response timeout used here: generous for a loaded machine */
 
 static peer_t P;
 static int framing;
