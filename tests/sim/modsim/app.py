@@ -16,7 +16,8 @@ from .control import Control
 from .fdc100 import Fdc100
 from .mts9 import MtS9
 from .mvd94 import MvD94, Vd
-from .transport import SerialLine, TcpLine
+from .tcp import TcpLine
+from .transport import SerialLine
 
 KINDS = {"mvd94": MvD94, "vd": Vd, "mts9": MtS9, "fdc100": Fdc100}
 TICK_S = 0.05       # real seconds between steps of the dynamics

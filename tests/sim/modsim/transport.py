@@ -1,4 +1,4 @@
-"""Transports: a serial line (a pty we create, or a real serial device) and Modbus/TCP.
+"""Serial transport: a pty we create, a serial device, or the S side of ptyline (--pace).
 
 The serial side is written on os/pyserial rather than on pymodbus's serial server because the
 line must (a) find frame ends by the t3.5 rule at the configured baud, (b) stay silent for bad
@@ -9,19 +9,13 @@ offers none of these hooks (its RTU framer even warns it does not support multid
 from __future__ import annotations
 
 import asyncio
-import json
 import os
 import random
-import shutil
-import signal
-import struct
-import subprocess
-import tempfile
 import termios
-import time
 import tty
 
 from . import frames
+from .ptyline import PtyLine
 
 LONG_GAP = 0.05   # an incomplete frame (by its function's length) is dropped after this silence
 BAUD_CONST = {b: getattr(termios, f"B{b}") for b in (2400, 4800, 9600, 19200, 38400, 57600,
@@ -270,138 +264,3 @@ class SerialLine:
                 return False
             view = view[n:]
         return True
-
-
-def _die_with_parent():
-    """In the ptyline child: SIGTERM when the simulator dies, even by SIGKILL (Linux prctl)."""
-    import ctypes
-    ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)   # PR_SET_PDEATHSIG
-
-
-class PtyLine:
-    """The ptyline program (tests/sim/ptyline) as the simulator's paced RS-485 line."""
-
-    def __init__(self, binary: str, line, seed: int):
-        self.binary, self.line, self.seed = binary, line, seed
-        self.proc = None
-        self.stats_path = os.path.join(tempfile.mkdtemp(prefix="mbsim-line-"), "line.json")
-
-    def start(self) -> tuple[str, str]:
-        """Start it; returns (master side path, simulator side path)."""
-        fmt = f"{self.line.data_bits}{self.line.parity}{self.line.stop_bits}"
-        self.proc = subprocess.Popen(
-            [self.binary, "--baud", str(self.line.baud), "--format", fmt,
-             "--turnaround-ms", "1:10", "--seed", str(self.seed), "--stats", self.stats_path],
-            stdout=subprocess.PIPE, stdin=subprocess.DEVNULL, preexec_fn=_die_with_parent)
-        sides = {}
-        while len(sides) < 2:
-            text = self.proc.stdout.readline().decode().split()
-            if len(text) != 2:
-                self.stop()
-                raise OSError("ptyline did not start")
-            sides[text[0]] = text[1]
-        return sides["M"], sides["S"]
-
-    def stop(self, final: bool = True):
-        """Stop the line program; final: also remove its statistics directory."""
-        if self.proc is not None and self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            try:
-                self.proc.wait(5)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
-        if self.proc is not None:
-            self.proc.stdout.close()
-        self.proc = None
-        if final:
-            shutil.rmtree(os.path.dirname(self.stats_path), ignore_errors=True)
-
-    def stats(self) -> dict:
-        """Fresh statistics: SIGUSR1 makes ptyline rewrite its stats file."""
-        if self.proc is None:
-            raise OSError("the line is down")
-        before = os.stat(self.stats_path).st_mtime_ns if os.path.exists(self.stats_path) else 0
-        self.proc.send_signal(signal.SIGUSR1)
-        end = time.monotonic() + 2.0
-        while time.monotonic() < end:
-            if os.path.exists(self.stats_path) and os.stat(self.stats_path).st_mtime_ns != before:
-                with open(self.stats_path, encoding="utf-8") as fh:
-                    return json.load(fh)
-            time.sleep(0.005)
-        raise OSError("ptyline did not write its statistics")
-
-
-class TcpLine:
-    """Modbus/TCP server on 127.0.0.1: MBAP unit id = slave address (MBAP by hand: 7 bytes)."""
-
-    def __init__(self, bus, host: str, port: int):
-        if host not in ("127.0.0.1", "localhost", "::1"):
-            raise ValueError("the simulator listens on 127.0.0.1 only")
-        self.bus, self.host, self.port = bus, host, port
-        self.server = None
-        self.writers = set()
-        self.counters = {}
-
-    def line_stats(self) -> dict:
-        return {"available": False, "why": "no RS-485 line on Modbus/TCP"}
-
-    async def start(self) -> str:
-        self.server = await asyncio.start_server(self._client, self.host, self.port)
-        self.port = self.server.sockets[0].getsockname()[1]
-        return f"TCP {self.host}:{self.port}"
-
-    def close(self, remove_link: bool = True):
-        if self.server:
-            self.server.close()
-            self.server = None
-        for writer in list(self.writers):
-            writer.close()
-        self.writers.clear()
-
-    async def reopen(self, down_ms: float) -> str:
-        self.close()
-        await asyncio.sleep(down_ms / 1000.0)
-        await self.start()
-        return f"{self.host}:{self.port}"
-
-    async def _client(self, reader, writer):
-        self.writers.add(writer)
-        try:
-            while True:
-                head = await reader.readexactly(7)
-                tid, proto, length, unit = struct.unpack(">HHHB", head)
-                if length < 2 or length > 254:
-                    self.bus.record("rx", head, "bad MBAP length")
-                    break
-                pdu = await reader.readexactly(length - 1)
-                if proto != 0:
-                    self.bus.record("rx", head + pdu, "bad protocol id")
-                    continue
-                self.bus.record("rx", head + pdu)
-                reply = self.bus.request(unit, pdu)
-                if reply is None:
-                    continue
-                out, delay, info = frames.mbap(tid, reply.addr, reply.pdu), 0.0, ""
-                if reply.fault is not None:
-                    out, delay = reply.queue.shape(reply.fault, out, "tcp",
-                                             lambda a: frames.mbap(tid, a, reply.pdu),
-                                             lambda f: f)
-                    info = reply.fault.kind
-                if out is None:
-                    self.bus.record("tx", b"", "drop")
-                    continue
-                asyncio.ensure_future(self._send(writer, out, delay, info))
-        except (asyncio.IncompleteReadError, ConnectionError):
-            pass
-        finally:
-            self.writers.discard(writer)
-            writer.close()
-
-    async def _send(self, writer, data, delay, info):
-        if delay:
-            await asyncio.sleep(delay)
-        if writer.is_closing():
-            return
-        self.bus.record("tx", data, info)
-        writer.write(data)
