@@ -70,7 +70,7 @@ typedef struct peer {
     char link[128];           /* symlink the shims open                           */
     peer_fn fn;
     void *user;
-    volatile int stop;
+    int stop;                 /* __atomic */
     pthread_t th;
     pthread_mutex_t lock;
     /* log (under lock) */
@@ -101,6 +101,9 @@ int64_t peer_time(peer_t *p, int i);
 void peer_reply_frame(peer_t *p, peer_reply_t *r, const uint8_t *frame, int len);
 void peer_reply_hex(peer_t *p, peer_reply_t *r, const char *frame_hex);
 void peer_reply_raw(peer_reply_t *r, const uint8_t *bytes, int len);
+/** Change the register bank / silence a slave while the peer runs. */
+void peer_set_reg(peer_t *p, int slave, int addr, uint16_t value);
+void peer_set_dead(peer_t *p, int slave, int dead);
 /** A well-behaved device from the register bank. */
 void peer_answer(peer_t *p, int n, const uint8_t *frame, int flen, peer_reply_t *r);
 

@@ -140,7 +140,7 @@ static int read_request(peer_t *p, uint8_t *buf)
 {
     int n = 0, need = 2;
     while (n == 0) {
-        if (p->stop)
+        if (__atomic_load_n(&p->stop, __ATOMIC_ACQUIRE))
             return 0;
         if (read_byte(p, buf, 20))
             n = 1;
@@ -186,7 +186,7 @@ static void *peer_main(void *arg)
 {
     peer_t *p = (peer_t *)arg;
     uint8_t raw[PEER_BUF], frame[PEER_BUF];
-    while (!p->stop) {
+    while (!__atomic_load_n(&p->stop, __ATOMIC_ACQUIRE)) {
         peer_reply_t r;
         int len = read_request(p, raw), flen, n;
         if (len <= 0)
@@ -239,7 +239,7 @@ int peer_start(peer_t *p, const char *link, int mode, peer_fn fn, void *user)
 
 void peer_stop(peer_t *p)
 {
-    p->stop = 1;
+    __atomic_store_n(&p->stop, 1, __ATOMIC_RELEASE);
     pthread_join(p->th, NULL);
     close(p->master);
     close(p->slave_keep);
@@ -337,8 +337,11 @@ void peer_answer(peer_t *p, int n, const uint8_t *f, int flen, peer_reply_t *r)
     uint8_t out[PEER_BUF];
     int k = 0;
     (void)n;
-    if (flen < 6 || p->dead[slave] || slave == 0)
+    pthread_mutex_lock(&p->lock); /* the test thread changes regs and dead */
+    if (flen < 6 || p->dead[slave] || slave == 0) {
+        pthread_mutex_unlock(&p->lock);
         return;
+    }
     out[k++] = (uint8_t)slave;
     out[k++] = (uint8_t)fc;
     if (fc == 3 || fc == 4) {
@@ -359,7 +362,22 @@ void peer_answer(peer_t *p, int n, const uint8_t *f, int flen, peer_reply_t *r)
         out[1] = (uint8_t)(fc | 0x80);
         out[k++] = 1;
     }
+    pthread_mutex_unlock(&p->lock);
     peer_reply_frame(p, r, out, k);
+}
+
+void peer_set_reg(peer_t *p, int slave, int addr, uint16_t value)
+{
+    pthread_mutex_lock(&p->lock);
+    p->regs[slave & 7][addr & 255] = value;
+    pthread_mutex_unlock(&p->lock);
+}
+
+void peer_set_dead(peer_t *p, int slave, int dead)
+{
+    pthread_mutex_lock(&p->lock);
+    p->dead[slave & 255] = dead;
+    pthread_mutex_unlock(&p->lock);
 }
 
 /* ---- shim helpers -------------------------------------------------------------- */

@@ -269,7 +269,7 @@ static void bad_args(void)
     CHECK(strlen(mbfb_strerror(-MBFB_E_INVAL)) > 0);
     t_sleep_ms(100);
     CHECK_EQ(peer_bytes(&P), 0); /* nothing was sent */
-    P.regs[1][3] = 4242;
+    peer_set_reg(&P, 1, 3, 4242);
     CHECK_EQ(t_run(dev, 3, 3, 1, NULL, v, 1), 1); /* the bus works: exactly one frame */
     CHECK_EQ(v[0], 4242);
     CHECK_EQ(peer_count(&P), 1);
@@ -374,10 +374,10 @@ static void no_port(void)
 }
 
 /* ---- port lost (USB adapter pulled) and back ------------------------------------- */
-static volatile int mute;
+static int mute; /* __atomic */
 static void mutable_peer(peer_t *p, int n, const uint8_t *f, int len, peer_reply_t *r)
 {
-    if (!mute)
+    if (!__atomic_load_n(&mute, __ATOMIC_ACQUIRE))
         peer_answer(p, n, f, len, r);
 }
 
@@ -387,13 +387,13 @@ static void port_lost(void)
     uint16_t v[1];
 
     t_scenario = "port lost";
-    mute = 0;
+    __atomic_store_n(&mute, 0, __ATOMIC_RELEASE);
     bus = open_bus(mutable_peer, PEER_RTU, 38400, 'N', 8, 1, MBFB_FRAMING_RTU, 2000, 3);
     dev = mbfb_dev_open(bus, 1);
-    P.regs[1][0] = 11;
+    peer_set_reg(&P, 1, 0, 11);
     CHECK_EQ(t_run(dev, 3, 0, 1, NULL, v, 1), 1);
     CHECK_EQ(v[0], 11);
-    mute = 1; /* the next request stays on the wire... */
+    __atomic_store_n(&mute, 1, __ATOMIC_RELEASE); /* the next request stays on the wire... */
     for (int i = 0; i < 3; i++)
         h[i] = mbfb_post(dev, 3, 0, 1, NULL);
     t_sleep_ms(100);
@@ -404,9 +404,9 @@ static void port_lost(void)
         CHECK_EQ(mbfb_take(h[i], v, 1), -MBFB_E_PORTLOST);
     }
     CHECK_EQ(t_run(dev, 3, 0, 1, NULL, v, 1), -MBFB_E_NOPORT); /* still gone */
-    mute = 0;
+    __atomic_store_n(&mute, 0, __ATOMIC_RELEASE);
     peer_start(&P, link_path(), PEER_RTU, mutable_peer, NULL); /* plugged back */
-    P.regs[1][0] = 22;
+    peer_set_reg(&P, 1, 0, 22);
     CHECK_EQ(t_run(dev, 3, 0, 1, NULL, v, 1), 1); /* reopened on the next request */
     CHECK_EQ(v[0], 22);
     teardown();
@@ -425,7 +425,7 @@ static void dead_device(void)
     d1 = mbfb_dev_open(bus, 1);
     d2 = mbfb_dev_open(bus, 2);
     d3 = mbfb_dev_open(bus, 3);
-    P.dead[2] = 1;
+    peer_set_dead(&P, 2, 1);
     for (int i = 0; i < iters; i++) {
         int h1 = mbfb_post(d1, 3, 0, 1, NULL), h2 = mbfb_post(d2, 3, 0, 1, NULL),
             h3 = mbfb_post(d3, 3, 0, 1, NULL);
@@ -449,8 +449,8 @@ static void dead_device(void)
     printf("dead device: %d frames to the dead slave over %d rounds (%d without back-off)\n",
            peer_slave_count(&P, 2), iters, iters * 4);
     /* it comes back by itself when it answers again */
-    P.dead[2] = 0;
-    P.regs[2][0] = 77;
+    peer_set_dead(&P, 2, 0);
+    peer_set_reg(&P, 2, 0, 77);
     end = t_now_us() + 30000000;
     while (t_now_us() < end && t_run(d2, 3, 0, 1, NULL, v, 1) != 1)
         t_sleep_ms(50);

@@ -27,7 +27,7 @@ static int setup(peer_fn fn, int retries)
         return -1;
     }
     for (int i = 0; i < 256; i++)
-        P.regs[1][i] = (uint16_t)(0x1000 + i);
+        peer_set_reg(&P, 1, i, (uint16_t)(0x1000 + i));
     c = t_cfg(P.link, 38400, framing, T_MS, retries);
     if (framing == MBFB_FRAMING_ASCII) { /* the Modbus ASCII default: 7E1 */
         c.data_bits = 7;
@@ -282,7 +282,7 @@ static void late_reply(void)
 
     late_ms = T_MS * 3 / 2; /* with retries: the retry's own answer is taken */
     dev = setup(late_once, 2);
-    P.regs[1][5] = 0xBEEF;
+    peer_set_reg(&P, 1, 5, 0xBEEF);
     CHECK_EQ(t_run(dev, 3, 5, 1, NULL, v, 1), 1);
     CHECK_EQ(v[0], 0xBEEF);
     CHECK_EQ(peer_count(&P), 2);

@@ -15,7 +15,8 @@
 #include "mbfb_test.h"
 
 enum { SRV_NORMAL, SRV_SILENT, SRV_LATE, SRV_DROP };
-static volatile int srv_mode, srv_served;
+static int srv_mode; /* __atomic: set by the test, read by the server */
+static pthread_mutex_t map_lock = PTHREAD_MUTEX_INITIALIZER; /* map: server vs test */
 static modbus_t *srv;
 static modbus_mapping_t *map;
 static int listen_fd;
@@ -34,18 +35,18 @@ static void *server_main(void *arg)
                 break; /* client closed: accept the next connection */
             if (n == 0)
                 continue;
-            srv_served++;
-            if (srv_mode == SRV_SILENT)
+            int mode = __atomic_exchange_n(&srv_mode, SRV_NORMAL, __ATOMIC_ACQ_REL);
+            if (mode == SRV_SILENT) {
+                __atomic_store_n(&srv_mode, SRV_SILENT, __ATOMIC_RELEASE);
                 continue;
-            if (srv_mode == SRV_DROP) {
-                srv_mode = SRV_NORMAL;
+            }
+            if (mode == SRV_DROP)
                 break;
-            }
-            if (srv_mode == SRV_LATE) {
-                srv_mode = SRV_NORMAL;
+            if (mode == SRV_LATE)
                 t_sleep_ms(500);
-            }
+            pthread_mutex_lock(&map_lock);
             modbus_reply(srv, q, n, map);
+            pthread_mutex_unlock(&map_lock);
         }
         close(s);
     }
@@ -91,28 +92,36 @@ int main(void)
     CHECK_EQ(v[0], 0x0707);
     v[0] = 0xABCD;
     CHECK_EQ(t_run(dev, 6, 5, 1, v, NULL, 0), 0);
+    pthread_mutex_lock(&map_lock);
     CHECK_EQ(map->tab_registers[5], 0xABCD);
+    pthread_mutex_unlock(&map_lock);
     v[0] = 1, v[1] = 2;
     CHECK_EQ(t_run(dev, 16, 98, 2, v, NULL, 0), 0);
+    pthread_mutex_lock(&map_lock);
     CHECK_EQ(map->tab_registers[99], 2);
+    pthread_mutex_unlock(&map_lock);
     CHECK_EQ(t_run(dev, 3, 99, 2, NULL, v, 2), -(MBFB_E_EXCEPTION_BASE + 2));
 
-    srv_mode = SRV_SILENT;
+    __atomic_store_n(&srv_mode, SRV_SILENT, __ATOMIC_RELEASE);
     CHECK_EQ(t_run(dev, 3, 0, 1, NULL, v, 1), -MBFB_E_TIMEOUT);
     CHECK_EQ(mbfb_dev_diag(dev, &d), 0);
     CHECK_EQ(d.timeouts, 2);
+    __atomic_store_n(&srv_mode, SRV_NORMAL, __ATOMIC_RELEASE);
 
     mbfb_shutdown(); /* again without retries */
     c.retries = 0;
     dev = mbfb_dev_open(mbfb_bus_open(&c), 1);
-    srv_mode = SRV_LATE; /* the reply comes after the timeout, on the old connection */
+    pthread_mutex_lock(&map_lock);
     map->tab_registers[1] = 0x1111;
     map->tab_registers[2] = 0x2222;
+    pthread_mutex_unlock(&map_lock);
+    /* the reply comes after the timeout, on the old connection */
+    __atomic_store_n(&srv_mode, SRV_LATE, __ATOMIC_RELEASE);
     CHECK_EQ(t_run(dev, 3, 1, 1, NULL, v, 1), -MBFB_E_TIMEOUT);
     CHECK_EQ(t_run(dev, 3, 2, 1, NULL, v, 1), 1);
     CHECK_EQ(v[0], 0x2222);
 
-    srv_mode = SRV_DROP; /* the gateway drops the connection */
+    __atomic_store_n(&srv_mode, SRV_DROP, __ATOMIC_RELEASE); /* the gateway drops */
     CHECK_EQ(t_run(dev, 3, 2, 1, NULL, v, 1), -MBFB_E_PORTLOST);
     CHECK_EQ(t_run(dev, 3, 3, 1, NULL, v, 1), 1); /* reconnected */
     CHECK_EQ(v[0], 0x2003);
