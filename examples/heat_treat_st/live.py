@@ -18,9 +18,9 @@ ROOT = os.path.dirname(os.path.dirname(HERE))
 sys.path[:0] = [os.path.join(ROOT, "tests", "e2e"), os.path.join(ROOT, "tests", "sim")]
 import oplc  # noqa: E402
 from simctl import Simulator  # noqa: E402
-from pymodbus.client import ModbusTcpClient  # noqa: E402
 
 PORT = 5502
+OPERATOR = [(120, 100), (180, 150), (150, 90)]  # zone 1 / zone 2 set points the demo sends
 
 
 def s16(v):
@@ -53,9 +53,9 @@ def sim_lines(sim):
     try:
         z1 = sim.ctl("get", addr=1, reg="PV")["eng"], sim.ctl("get", addr=1, reg="SP1")["eng"]
         z2 = sim.ctl("get", addr=2, reg="PV")["eng"], sim.ctl("get", addr=2, reg="SV")["eng"]
-        n = sim.ctl("get", addr=3, reg="VALUE")["eng"]
+        n = sim.ctl("get", addr=3, reg="VALUE")["raw"]
         return [f"FDC-100 PV {z1[0]:.1f} SP1 {z1[1]:.1f}   MV-D94 PV {z2[0]:.1f} SV {z2[1]:.1f}   "
-                f"MT-S9 count {n:g}"]
+                f"MT-S9 count {n}"]
     except Exception as e:  # the display must not die on a control hiccup
         return [f"(simulator: {e})"]
 
@@ -69,7 +69,8 @@ def main():
     ap.add_argument("--time-scale", type=float, default=20.0)
     ap.add_argument("--seconds", type=float, default=0, help="stop after this long (0 = Ctrl-C)")
     args = ap.parse_args()
-    signal.signal(signal.SIGTERM, _stop)
+    for sig in (signal.SIGTERM, signal.SIGHUP):
+        signal.signal(sig, _stop)
     tmp = tempfile.mkdtemp(prefix="mbfb-demo-")
     bus = os.path.join(tmp, "bus")
     dist = os.path.join(tmp, "dist")
@@ -85,17 +86,21 @@ def main():
             plc.compile(oplc.retarget(os.path.join(HERE, "heat_treat_st.st"),
                                       os.path.join(tmp, "heat_treat_st.st"), bus))
             plc.start(modbus_port=PORT)
-            client = ModbusTcpClient("127.0.0.1", port=PORT, timeout=2)
-            client.connect()
+            client = oplc.PlcClient(PORT)
             t0 = time.monotonic()
+            step = -1
             try:
                 while not args.seconds or time.monotonic() - t0 < args.seconds:
-                    hr = client.read_holding_registers(0, count=9)
-                    co = client.read_coils(0, count=9)
-                    if hr.isError() or co.isError():
-                        print(f"Modbus read failed: {hr} {co}")
-                    else:
-                        screen(hr.registers, co.bits, sim_lines(sim), t0, plc.dir)
+                    # Play the operator: a new pair of set points every 40 s, written to the
+                    # PLC's Modbus TCP server (the example sends them to the instruments).
+                    if int((time.monotonic() - t0) // 40) != step:
+                        step = int((time.monotonic() - t0) // 40)
+                        sp = OPERATOR[step % len(OPERATOR)]
+                        client.write(1024, sp[0] * 10)
+                        client.write(1025, sp[1] * 10)
+                    screen(client.hr(0, 9), client.coils(9), sim_lines(sim), t0, plc.dir)
+                    print(f"\noperator: set points {sp[0]} / {sp[1]} written to HR 1024/1025"
+                          " (changes every 40 s)")
                     time.sleep(0.5)
             finally:
                 client.close()

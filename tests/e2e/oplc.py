@@ -93,7 +93,8 @@ class Scratch:
                                "namespace (its servers bind every interface): run under tests/e2e/netns.sh")
         self.log = open(os.path.join(self.dir, "runtime.log"), "w+")
         self.proc = subprocess.Popen(["./core/openplc"], cwd=self.web, stdout=self.log,
-                                     stderr=subprocess.STDOUT, start_new_session=True)
+                                     stderr=subprocess.STDOUT, start_new_session=True,
+                                     preexec_fn=_die_with_parent)
         deadline = time.monotonic() + timeout
         while True:
             try:
@@ -104,8 +105,17 @@ class Scratch:
                     raise RuntimeError("OpenPLC runtime did not start:\n" + self.runtime_log())
                 time.sleep(0.1)
         if modbus_port:
-            self.command(f"start_modbus({modbus_port})")
-            wait_port(modbus_port, deadline - time.monotonic())
+            # The interactive server may drop a command sent right after it starts listening:
+            # ask again (only while the port is still closed) until the deadline.
+            deadline = time.monotonic() + timeout
+            while True:
+                self.command(f"start_modbus({modbus_port})")
+                try:
+                    return wait_port(modbus_port, 1.0)
+                except RuntimeError:
+                    if self.proc.poll() is not None or time.monotonic() > deadline:
+                        raise RuntimeError(f"Modbus server not up on {modbus_port}:\n"
+                                           + self.runtime_log())
 
     def command(self, cmd):
         """Send one command to the runtime's interactive server (interactive_server.cpp)."""
@@ -142,6 +152,13 @@ class Scratch:
             self.log = None
         if not self.keep:
             shutil.rmtree(self.dir, ignore_errors=True)
+
+
+def _die_with_parent():
+    """In the child: SIGKILL it if the process that started it dies without cleaning up."""
+    import ctypes
+    PR_SET_PDEATHSIG = 1
+    ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
 
 
 def wait_port(port, timeout):
