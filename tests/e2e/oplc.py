@@ -77,7 +77,9 @@ class Scratch:
 
     def compile(self, st_path, name="program.st"):
         """Compile an ST program exactly as OpenPLC does (scripts/compile_program.sh)."""
-        shutil.copyfile(st_path, os.path.join(self.web, "st_files", name))
+        dst = os.path.join(self.web, "st_files", name)
+        if os.path.abspath(st_path) != os.path.abspath(dst):
+            shutil.copyfile(st_path, dst)
         r = subprocess.run(["./scripts/compile_program.sh", name], cwd=self.web,
                            capture_output=True, text=True)
         out = r.stdout + r.stderr
