@@ -106,5 +106,5 @@ static int ascii_recv(mbfb_bus_t *bus, const uint8_t *req, uint8_t *frame, int m
 }
 
 const mbfb_backend_t mbfb_backend_ascii = {
-    "ascii", mbfb_serial_open, mbfb_lm_close, mbfb_lm_flush, mbfb_serial_resync,
+    "ascii", mbfb_serial_open, mbfb_lm_close, mbfb_serial_flush, mbfb_serial_resync,
     ascii_send, ascii_recv};

@@ -14,6 +14,7 @@
 #include <poll.h>
 #include <stdlib.h>
 #include <string.h>
+#include <termios.h>
 #include <unistd.h>
 
 #include "mbfb_internal.h"
@@ -93,16 +94,25 @@ void mbfb_lm_close(mbfb_bus_t *bus)
     bus->fd = -1;
 }
 
-void mbfb_lm_flush(mbfb_bus_t *bus)
+/* TCP: libmodbus's flush reads and drops what is pending on the socket. */
+static void tcp_flush(mbfb_bus_t *bus)
 {
     modbus_flush(bus->ctx);
+}
+
+/* Serial: drop unread input only. Written here because modbus_flush() does
+ * tcflush(TCIOFLUSH), which also discards output not yet on the wire (on a pty: a
+ * request the peer has not read yet, e.g. a broadcast). */
+void mbfb_serial_flush(mbfb_bus_t *bus)
+{
+    tcflush(bus->fd, TCIFLUSH);
 }
 
 /* As libmodbus's own protocol recovery: wait out a late reply, then flush it. */
 void mbfb_serial_resync(mbfb_bus_t *bus)
 {
     mbfb_sleep_until_us(mbfb_now_us() + bus->timeout_us);
-    modbus_flush(bus->ctx);
+    mbfb_serial_flush(bus);
     bus->quiet_from_us = mbfb_now_us();
 }
 
@@ -172,12 +182,12 @@ static int lm_recv(mbfb_bus_t *bus, const uint8_t *req, uint8_t *frame, int max,
 }
 
 const mbfb_backend_t mbfb_backend_rtu = {
-    "rtu", mbfb_serial_open, mbfb_lm_close, mbfb_lm_flush, mbfb_serial_resync,
+    "rtu", mbfb_serial_open, mbfb_lm_close, mbfb_serial_flush, mbfb_serial_resync,
     lm_send, lm_recv};
 
 const mbfb_backend_t mbfb_backend_nocrc = {
-    "rtu-nocrc", mbfb_serial_open, mbfb_lm_close, mbfb_lm_flush, mbfb_serial_resync,
+    "rtu-nocrc", mbfb_serial_open, mbfb_lm_close, mbfb_serial_flush, mbfb_serial_resync,
     nocrc_send, lm_recv};
 
 const mbfb_backend_t mbfb_backend_tcp = {
-    "tcp", tcp_open, mbfb_lm_close, mbfb_lm_flush, tcp_resync, lm_send, lm_recv};
+    "tcp", tcp_open, mbfb_lm_close, tcp_flush, tcp_resync, lm_send, lm_recv};

@@ -104,10 +104,10 @@ extern const mbfb_backend_t mbfb_backend_tcp;    /* libmodbus TCP               
 
 /* serial port helpers shared by the serial backends (mbfb_backend_lm.c): the port is
  * opened and configured by libmodbus (modbus_new_rtu + modbus_connect) for every
- * serial framing, so termios handling is never hand-written. */
+ * serial framing, so termios settings are never hand-written. */
 int  mbfb_serial_open(struct mbfb_bus *bus);
 void mbfb_lm_close(struct mbfb_bus *bus);
-void mbfb_lm_flush(struct mbfb_bus *bus);
+void mbfb_serial_flush(struct mbfb_bus *bus);
 void mbfb_serial_resync(struct mbfb_bus *bus);
 /** write() all of buf on the bus fd (non-blocking fd; waits with poll). */
 int  mbfb_fd_write_all(struct mbfb_bus *bus, const uint8_t *buf, int len);

@@ -87,7 +87,7 @@ typedef struct peer {
 
 /** Start a peer on a new pty; `link` becomes a symlink to it (replaced if present). */
 int peer_start(peer_t *p, const char *link, int mode, peer_fn fn, void *user);
-/** Stop the thread and close the pty (the shims' port is then gone). */
+/** Stop the thread, remove the link and close the pty (the shims' port is gone). */
 void peer_stop(peer_t *p);
 int peer_count(peer_t *p);
 long peer_bytes(peer_t *p);

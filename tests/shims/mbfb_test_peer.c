@@ -241,6 +241,9 @@ void peer_stop(peer_t *p)
 {
     __atomic_store_n(&p->stop, 1, __ATOMIC_RELEASE);
     pthread_join(p->th, NULL);
+    /* the port disappears, as a pulled USB adapter's device node does; a dangling link
+     * would name the next pty that reuses this number (another test's) */
+    unlink(p->link);
     close(p->master);
     close(p->slave_keep);
     p->master = p->slave_keep = -1;
