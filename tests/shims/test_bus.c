@@ -206,7 +206,10 @@ static void broadcast(void)
     CHECK_EQ(t_wait(h), MBFB_REQ_DONE);
     CHECK_EQ(mbfb_take(h, NULL, 0), 0);
     CHECK_EQ(t_run(dev, 3, 0, 1, NULL, v, 1), 1);
-    CHECK_EQ(t_run(bc, 16, 0, 2, v, NULL, 0), 0);
+    CHECK_EQ(t_run(bc, 16, 0, 2, v, NULL, 0), 0); /* done when written: the peer may */
+    for (int i = 0; i < 100 && peer_count(&P) < 3; i++) /* not have read it yet */
+        t_sleep_ms(10);
+    t_sleep_ms(50);
     CHECK_EQ(peer_count(&P), 3); /* sent once each: nothing awaited, nothing retried */
     {
         uint8_t raw[PEER_BUF];
