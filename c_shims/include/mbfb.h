@@ -61,6 +61,16 @@ extern "C" {
 #define MBFB_E_BADHANDLE    11  /* unknown or stale bus/device/request handle         */
 #define MBFB_E_NOMEM        12  /* setup could not allocate / too many buses/devices  */
 #define MBFB_E_EXCEPTION_BASE 128 /* + Modbus exception code                          */
+/* Function-block input errors (st_src/): found before anything is sent.              */
+#define MBFB_E_BAD_SLAVE     200 /* SlaveId 0 for a read/monitoring block, or > 247     */
+#define MBFB_E_NO_PORT_NAME  201 /* Port string empty                                   */
+#define MBFB_E_RANGE         202 /* set point / value out of its documented range       */
+#define MBFB_E_UNKNOWN_CODE  203 /* unknown index/alarm/baud/protocol/decimal code      */
+#define MBFB_E_NOT_ALLOWED   204 /* command not allowed in the device's current mode    */
+#define MBFB_E_NOT_READY     205 /* limits/scaling needed for the check not yet known   */
+#define MBFB_E_BAD_REQUEST   206 /* register request invalid (fc, count, address)       */
+#define MBFB_E_BAD_LINE      207 /* line settings invalid (data/stop bits, baud, timeout) */
+#define MBFB_E_NOT_ENABLED   208 /* command on a device block whose Enable is FALSE     */
 
 /* ---- setup ---------------------------------------------------------------- */
 

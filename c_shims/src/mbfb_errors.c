@@ -38,7 +38,20 @@ const char *mbfb_strerror(int code)
         return exc[code - MBFB_E_EXCEPTION_BASE];
     if (code > MBFB_E_EXCEPTION_BASE && code < 200)
         return exc[0];
-    if (code >= 200 && code <= 255)
+    static const char *const input[] = {
+        "bad slave id: 0 is broadcast (writes only), the maximum is 247",
+        "port name empty",
+        "value out of its documented range: not sent",
+        "unknown code: not sent",
+        "command not allowed in the device's current mode: not sent",
+        "not ready: limits or scaling not yet read from the device",
+        "invalid register request (function, count or address)",
+        "invalid line settings (data bits, stop bits, baud or timeout)",
+        "block not enabled",
+    };
+    if (code >= MBFB_E_BAD_SLAVE && code <= MBFB_E_NOT_ENABLED)
+        return input[code - MBFB_E_BAD_SLAVE];
+    if (code > MBFB_E_NOT_ENABLED && code <= 255)
         return "function block input error (see the block's documentation)";
     return "unknown error";
 }
