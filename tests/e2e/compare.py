@@ -151,7 +151,11 @@ def run(kind, dist, tmp):
 def main():
     dist = os.environ["MBFB_DIST"]
     tmp = tempfile.mkdtemp(prefix="mbfb-compare-")
-    out = {k: run(k, dist, tmp) for k in ("slave_devices", "mbfb")}
+    try:
+        out = {k: run(k, dist, tmp) for k in ("slave_devices", "mbfb")}
+    finally:
+        import shutil
+        shutil.rmtree(tmp, ignore_errors=True)
     print(json.dumps(out, indent=1))
 
 
