@@ -6,6 +6,7 @@
 # (--time-scale F, --seconds N).
 set -euo pipefail
 cd "$(dirname "$0")"
+scripts/deps.sh
 scripts/venv.sh
 export OPENPLC_HOME="${OPENPLC_HOME:-/opt/OpenPLC_v3}"
 if [ ! -x "$OPENPLC_HOME/webserver/iec2c" ] || [ ! -x "$OPENPLC_HOME/webserver/core/glue_generator" ]; then
