@@ -175,6 +175,23 @@ def wait_port(port, timeout):
             time.sleep(0.1)
 
 
+def wait(pred, timeout, what):
+    """pred()'s first truthy value, polled every 0.1 s; AssertionError after timeout seconds."""
+    end = time.monotonic() + timeout
+    while True:
+        v = pred()
+        if v:
+            return v
+        if time.monotonic() > end:
+            raise AssertionError(f"timed out after {timeout}s waiting for {what}")
+        time.sleep(0.1)
+
+
+def s16(v):
+    """A Modbus register as a signed 16-bit value."""
+    return v - 65536 if v >= 32768 else v
+
+
 EXAMPLE_BUS = "/tmp/heat_treat_bus"  # BusPort of examples/heat_treat_*; tests point it elsewhere
 
 
@@ -230,6 +247,9 @@ class PlcClient:
 
     def write(self, addr, value):
         self._call(self.client.write_register, addr, value)
+
+    def write_coil(self, addr, value):
+        self._call(self.client.write_coil, addr, value)
 
     def close(self):
         self.client.close()

@@ -9,6 +9,7 @@ import time
 import pytest
 
 import oplc
+from oplc import s16, wait
 
 sys.path.insert(0, os.path.join(oplc.ROOT, "tests", "sim"))
 from simctl import Simulator  # noqa: E402
@@ -19,17 +20,6 @@ PORT = 5502
 Z1PV, Z1SV, Z1ERR, Z2PV, Z2SV, Z2ERR, COUNT, COUNTERR, BEAT = range(9)
 Z2SPREQ = 1025
 C_Z1VALID, C_Z2VALID, C_Z2QUIET, C_PARTSVALID, C_ANY = 0, 3, 5, 6, 8
-
-
-def wait(pred, timeout, what):
-    end = time.monotonic() + timeout
-    while True:
-        v = pred()
-        if v:
-            return v
-        if time.monotonic() > end:
-            raise AssertionError(f"timed out after {timeout}s waiting for {what}")
-        time.sleep(0.1)
 
 
 @pytest.fixture(scope="module")
@@ -56,10 +46,6 @@ def hr(client, addr, count=1):
 
 def coils(client, count=9):
     return client.coils(count)
-
-
-def s16(v):
-    return v - 65536 if v >= 32768 else v
 
 
 def test_plc_shows_the_simulators_values(plant):
