@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Runs every test: ./test.sh            (all suites)
-#                  ./test.sh -L shims   (one label: shims, sim, fb, e2e)
+#                  ./test.sh -L shims   (one label: shims, sim, fb, e2e, editor)
 #                  ./test.sh -R crc     (tests whose name matches)
 # Extra arguments go to ctest.
 set -euo pipefail
