@@ -2,11 +2,12 @@
  * mbfb_backend_ascii.c - Modbus ASCII framing: ':' + hex(frame + LRC) + CR LF.
  *
  * Written here because libmodbus has no ASCII mode. The serial port itself is still
- * opened, configured and flushed by libmodbus (mbfb_backend_lm.c); only the framing
- * is ours. A ':' always starts a new frame, so noise before it is skipped.
+ * opened and configured by libmodbus (mbfb_backend_lm.c); only the framing is ours.
+ * A ':' always starts a new frame, so noise before it is skipped; a line that never
+ * stops talking still ends the wait (first byte by the response timeout, the frame
+ * within the longest frame's time after that).
  */
 #include <errno.h>
-#include <poll.h>
 #include <unistd.h>
 
 #include "mbfb_internal.h"
@@ -41,33 +42,28 @@ static int ascii_send(mbfb_bus_t *bus, const uint8_t *frame, int len)
     return mbfb_fd_write_all(bus, (const uint8_t *)out, n);
 }
 
-/* Wait up to wait_us for input. 1 = readable, 0 = timeout. */
-static int wait_input(int fd, int64_t wait_us)
-{
-    struct pollfd p = {fd, POLLIN, 0};
-    int ms = wait_us <= 0 ? 0 : (int)((wait_us + 999) / 1000);
-    int rc;
-    while ((rc = poll(&p, 1, ms)) < 0 && errno == EINTR) {
-    }
-    return rc > 0;
-}
-
 enum { A_IDLE, A_HEX, A_CR };
 
 static int ascii_recv(mbfb_bus_t *bus, const uint8_t *req, uint8_t *frame, int max,
                       int timeout_us)
 {
-    int64_t deadline = mbfb_now_us() + timeout_us;
+    int64_t start_by = mbfb_now_us() + timeout_us; /* a ':' must come by then       */
+    int64_t end_by = start_by + bus->timing.byte_us +   /* and its frame end by then */
+                     (int64_t)mbfb_wire_len(MBFB_FRAMING_ASCII, MBFB_FRAME_MAX) *
+                         bus->timing.char_us;
     int state = A_IDLE, nhex = 0, got_any = 0, hi = 0;
     uint8_t bin[MBFB_FRAME_MAX + 1];
 
     (void)req;
     for (;;) {
         uint8_t chunk[64];
-        int64_t wait = got_any ? bus->timing.byte_us : deadline - mbfb_now_us();
+        int64_t now = mbfb_now_us(), limit = state == A_IDLE ? start_by : end_by;
+        int64_t wait = got_any ? bus->timing.byte_us : limit - now;
         ssize_t n;
 
-        if (!wait_input(bus->fd, wait))
+        if (wait > limit - now) /* noise never ends the wait by itself */
+            wait = limit - now;
+        if (mbfb_fd_wait_input(bus->fd, wait) <= 0)
             return got_any ? -MBFB_E_BADREPLY : -MBFB_E_TIMEOUT; /* truncated / none */
         n = read(bus->fd, chunk, sizeof chunk);
         if (n < 0 && (errno == EAGAIN || errno == EINTR))
@@ -106,5 +102,5 @@ static int ascii_recv(mbfb_bus_t *bus, const uint8_t *req, uint8_t *frame, int m
 }
 
 const mbfb_backend_t mbfb_backend_ascii = {
-    "ascii", mbfb_serial_open, mbfb_lm_close, mbfb_serial_flush, mbfb_serial_resync,
-    ascii_send, ascii_recv};
+    "ascii", mbfb_serial_open, mbfb_lm_close, mbfb_serial_quiet, NULL, ascii_send,
+    ascii_recv};

@@ -4,17 +4,20 @@
  *
  * libmodbus does: opening and configuring the port (termios), RTU/TCP framing, the
  * CRC of requests and the framing + CRC check of replies (modbus_send_raw_request,
- * modbus_receive_confirmation), flushing.
+ * modbus_receive_confirmation), flushing a TCP socket.
  * Written here, because libmodbus has no such mode: the RTU-without-CRC request
  * (MT-S9 Type 2 sends 00 00 where the CRC goes; libmodbus always appends a real
  * CRC), written straight to libmodbus's file descriptor. Its reply still carries a
- * real CRC, so it is received and checked by libmodbus like RTU.
+ * real CRC, so it is received and checked by libmodbus like RTU. And the
+ * receive-monitored silence before a request on a serial line (mbfb_serial_quiet).
  */
+#ifndef _GNU_SOURCE
+#define _GNU_SOURCE /* ppoll (g++ defines it already) */
+#endif
 #include <errno.h>
 #include <poll.h>
 #include <stdlib.h>
 #include <string.h>
-#include <termios.h>
 #include <unistd.h>
 
 #include "mbfb_internal.h"
@@ -94,29 +97,66 @@ void mbfb_lm_close(mbfb_bus_t *bus)
     bus->fd = -1;
 }
 
-/* TCP: libmodbus's flush reads and drops what is pending on the socket. */
-static void tcp_flush(mbfb_bus_t *bus)
+/* TCP: libmodbus's flush reads and drops what is pending on the socket (no line to
+ * fall silent: the silence is ignored). Returns the bytes it dropped. */
+static int tcp_quiet(mbfb_bus_t *bus, int silence_us, int limit_us)
 {
-    modbus_flush(bus->ctx);
+    int n = modbus_flush(bus->ctx);
+    (void)silence_us, (void)limit_us;
+    return n > 0 ? n : 0;
 }
 
-/* Serial: drop unread input only. Written here because modbus_flush() does
- * tcflush(TCIOFLUSH), which also discards output not yet on the wire (on a pty: a
- * request the peer has not read yet, e.g. a broadcast). */
-void mbfb_serial_flush(mbfb_bus_t *bus)
+int mbfb_fd_wait_input(int fd, int64_t wait_us)
 {
-    tcflush(bus->fd, TCIFLUSH);
+    struct pollfd p = {fd, POLLIN, 0};
+    struct timespec ts;
+    int rc;
+
+    if (wait_us < 0)
+        wait_us = 0;
+    ts.tv_sec = (time_t)(wait_us / 1000000);
+    ts.tv_nsec = (long)(wait_us % 1000000) * 1000;
+    while ((rc = ppoll(&p, 1, &ts, NULL)) < 0 && errno == EINTR) {
+    }
+    return rc < 0 ? -1 : rc > 0;
 }
 
-/* As libmodbus's own protocol recovery: wait out a late reply, then flush it. */
-void mbfb_serial_resync(mbfb_bus_t *bus)
+/* Serial: wait until the line has been silent for silence_us, reading and discarding
+ * whatever arrives meanwhile (see mbfb_backend_t.quiet). Written here because
+ * libmodbus only flushes, and modbus_flush() on a serial port is tcflush(TCIOFLUSH):
+ * it would also drop output not yet on the wire (on a pty: a broadcast the peer has
+ * not read) and it cannot tell a finished line from one still carrying a late reply. */
+int mbfb_serial_quiet(mbfb_bus_t *bus, int silence_us, int limit_us)
 {
-    mbfb_sleep_until_us(mbfb_now_us() + bus->timeout_us);
-    mbfb_serial_flush(bus);
-    bus->quiet_from_us = mbfb_now_us();
+    int64_t give_up = mbfb_now_us() + limit_us;
+    int stray = 0;
+
+    for (;;) {
+        uint8_t junk[256];
+        int64_t end = bus->quiet_from_us + silence_us;
+        ssize_t n;
+        int rc;
+
+        if (end > give_up)
+            end = give_up; /* babbling line: send anyway, the reply check decides */
+        rc = mbfb_fd_wait_input(bus->fd, end - mbfb_now_us());
+        if (rc <= 0)
+            return rc < 0 ? -MBFB_E_PORTLOST : stray; /* silent until `end` */
+        /* readable: a tty with VMIN = VTIME = 0 returns 0 only when it is gone */
+        n = read(bus->fd, junk, sizeof junk);
+        if (n > 0) {
+            int64_t now = mbfb_now_us();
+            stray += (int)n;
+            if (bus->quiet_from_us < now) /* a byte restarts the silence */
+                bus->quiet_from_us = now;
+            if (now >= give_up)
+                return stray;
+        } else if (n == 0 || (errno != EAGAIN && errno != EINTR)) {
+            return -MBFB_E_PORTLOST; /* EOF (adapter gone) or EIO */
+        }
+    }
 }
 
-/* TCP: a late reply can only come on the old connection, so open a new one. */
 static void tcp_resync(mbfb_bus_t *bus)
 {
     mbfb_lm_close(bus);
@@ -182,12 +222,11 @@ static int lm_recv(mbfb_bus_t *bus, const uint8_t *req, uint8_t *frame, int max,
 }
 
 const mbfb_backend_t mbfb_backend_rtu = {
-    "rtu", mbfb_serial_open, mbfb_lm_close, mbfb_serial_flush, mbfb_serial_resync,
-    lm_send, lm_recv};
+    "rtu", mbfb_serial_open, mbfb_lm_close, mbfb_serial_quiet, NULL, lm_send, lm_recv};
 
 const mbfb_backend_t mbfb_backend_nocrc = {
-    "rtu-nocrc", mbfb_serial_open, mbfb_lm_close, mbfb_serial_flush, mbfb_serial_resync,
-    nocrc_send, lm_recv};
+    "rtu-nocrc", mbfb_serial_open, mbfb_lm_close, mbfb_serial_quiet, NULL, nocrc_send,
+    lm_recv};
 
 const mbfb_backend_t mbfb_backend_tcp = {
-    "tcp", tcp_open, mbfb_lm_close, tcp_flush, tcp_resync, lm_send, lm_recv};
+    "tcp", tcp_open, mbfb_lm_close, tcp_quiet, tcp_resync, lm_send, lm_recv};

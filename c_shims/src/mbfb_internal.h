@@ -34,6 +34,8 @@ extern "C" {
 #define MBFB_PROBE_MAX_MS    8000
 #define MBFB_TURNAROUND_US   10000 /* after a broadcast: SetPro processing max 10 ms */
 #define MBFB_PROCESSING_US   10000 /* device processing time used in timeouts      */
+#define MBFB_QUIET_LIMIT_T   3  /* a line that never falls silent is waited for at most
+                                   the silence + this many response timeouts         */
 
 /* ---- CRC / LRC / frames (mbfb_frame.c) --------------------------------------
  * A "frame" here is slave id + PDU, without CRC, LRC or MBAP header: the backends
@@ -74,7 +76,6 @@ int mbfb_response_timeout_us(const mbfb_timing_t *t, int framing, int req_frame_
 
 /* ---- monotonic clock helpers (mbfb_timing.c) ------------------------------- */
 int64_t mbfb_now_us(void);
-void mbfb_sleep_until_us(int64_t t_us);
 
 /* ---- backends ---------------------------------------------------------------
  * One struct of function pointers per transport, like libmodbus's own backend
@@ -85,10 +86,15 @@ typedef struct mbfb_backend {
     const char *name;
     int  (*open)(struct mbfb_bus *bus);
     void (*close)(struct mbfb_bus *bus);
-    /** Discard pending input (cheap; done before every request). */
-    void (*flush)(struct mbfb_bus *bus);
-    /** After a timeout or a garbled reply: make sure a late reply cannot be read
-     *  as the answer to the next request. */
+    /** Before every attempt: discard pending input and, on a serial line, wait until
+     *  the line has been silent for silence_us since bus->quiet_from_us; every byte
+     *  heard meanwhile is read, discarded and restarts the silence; after limit_us in
+     *  all the wait ends anyway (a babbling line). Returns the bytes discarded (>= 0)
+     *  or -MBFB_E_PORTLOST. */
+    int  (*quiet)(struct mbfb_bus *bus, int silence_us, int limit_us);
+    /** After a failed attempt, or NULL: TCP reconnects (a late reply can only come on
+     *  the old connection). Serial lines need nothing here: the worker asks quiet()
+     *  for a longer silence before the next request instead. */
     void (*resync)(struct mbfb_bus *bus);
     int  (*send)(struct mbfb_bus *bus, const uint8_t *frame, int len);
     /** Receive one reply frame (slave + PDU, check bytes stripped and verified).
@@ -107,8 +113,10 @@ extern const mbfb_backend_t mbfb_backend_tcp;    /* libmodbus TCP               
  * serial framing, so termios settings are never hand-written. */
 int  mbfb_serial_open(struct mbfb_bus *bus);
 void mbfb_lm_close(struct mbfb_bus *bus);
-void mbfb_serial_flush(struct mbfb_bus *bus);
-void mbfb_serial_resync(struct mbfb_bus *bus);
+int  mbfb_serial_quiet(struct mbfb_bus *bus, int silence_us, int limit_us);
+/** Wait up to wait_us (microseconds) for input on fd: 1 readable (or hung up),
+ *  0 nothing came, -1 poll failed. */
+int  mbfb_fd_wait_input(int fd, int64_t wait_us);
 /** write() all of buf on the bus fd (non-blocking fd; waits with poll). */
 int  mbfb_fd_write_all(struct mbfb_bus *bus, const uint8_t *buf, int len);
 /** Map an errno from libmodbus or read/write to -MBFB_E_*. */
@@ -159,6 +167,10 @@ typedef struct mbfb_bus {
     int fd;                  /* its file descriptor, -1 when closed               */
     int64_t quiet_from_us;   /* the line is silent from this time on              */
     int timeout_us;          /* response timeout of the current transaction       */
+    int settle_us;           /* silence owed before the next request: the response
+                                timeout of a transaction that had a failed attempt
+                                (its late reply may still come), else 0           */
+    uint32_t stray_bytes;    /* atomic: bytes discarded by quiet() (diag)          */
     int stop;                /* atomic: worker exits                              */
     uint32_t post_seq;       /* atomic: next sequence number                      */
     sem_t wake;              /* posted by mbfb_post, waited on by the worker      */

@@ -152,6 +152,7 @@ int mbfb_cancel(int req)
 int mbfb_dev_diag(int dev, mbfb_diag_t *out)
 {
     mbfb_dev_t *d;
+    mbfb_bus_t *b;
     const uint32_t *src;
     uint32_t *dst;
 
@@ -163,6 +164,9 @@ int mbfb_dev_diag(int dev, mbfb_diag_t *out)
     dst = (uint32_t *)out;
     for (size_t i = 0; i < sizeof *out / sizeof *dst; i++)
         dst[i] = __atomic_load_n(&src[i], __ATOMIC_RELAXED);
+    /* stray bytes belong to the line, not to one device: the bus's count */
+    b = __atomic_load_n(&mbfb_buses[d->bus], __ATOMIC_ACQUIRE);
+    out->stray_bytes = b ? __atomic_load_n(&b->stray_bytes, __ATOMIC_RELAXED) : 0;
     return 0;
 }
 

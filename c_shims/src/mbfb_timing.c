@@ -15,7 +15,6 @@
  *               Modbus TCP (a gateway to a serial line): the same at 9600 8N1
  *               unless a baud is given, and at least 500 ms.
  */
-#include <errno.h>
 #include <time.h>
 
 #include "mbfb_internal.h"
@@ -63,13 +62,4 @@ int64_t mbfb_now_us(void)
     struct timespec ts;
     clock_gettime(CLOCK_MONOTONIC, &ts);
     return (int64_t)ts.tv_sec * 1000000 + ts.tv_nsec / 1000;
-}
-
-void mbfb_sleep_until_us(int64_t t_us)
-{
-    struct timespec ts;
-    ts.tv_sec = (time_t)(t_us / 1000000);
-    ts.tv_nsec = (long)(t_us % 1000000) * 1000;
-    while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, NULL) == EINTR) {
-    }
 }

@@ -2,10 +2,16 @@
  * mbfb_worker.c - the one thread per bus that does all its I/O.
  *
  * Per request: back-off check, (re)open the port, then up to 1 + retries attempts:
- *   wait for the inter-frame gap, flush input, send, receive, validate.
- * After a timeout or a garbled reply the backend resynchronises (serial: wait out a
- * late reply for one response timeout, then flush; TCP: reconnect), and every request
- * starts with a flush, so a late reply is never read as the answer to another request.
+ *   wait until the line is silent (every byte heard is read, discarded and counted,
+ *   and restarts the silence), send, receive, validate.
+ * Late replies (RTU has no transaction id):
+ *   - a retry follows a failed attempt after the usual gap only. A late reply to an
+ *     earlier attempt that arrives while the retry waits is taken: it answers the
+ *     same question (same slave, function, registers; a write's same value).
+ *   - after a transaction with a failed attempt, the NEXT request waits until the
+ *     line has been silent for a whole response timeout (bus->settle_us), so a late
+ *     reply still on its way is heard and discarded, not taken as that answer.
+ *   - TCP reconnects after a failed attempt instead.
  * Write retries re-send the same absolute value, so a write the device applied but
  * whose reply was lost is applied again with the same effect (idempotent).
  */
@@ -39,10 +45,26 @@ static void count_failure(mbfb_dev_t *dev, int err)
         MBFB_DIAG_INC(dev, bad_replies);
 }
 
+/* Wait for a silent line before an attempt: the gap, or after a transaction that had
+ * a failed attempt, a whole response timeout (first attempt only). 0 or -PORTLOST. */
+static int wait_quiet(mbfb_bus_t *bus, int first)
+{
+    int silence = bus->timing.gap_us, n;
+
+    if (first && bus->settle_us > silence)
+        silence = bus->settle_us;
+    n = bus->be->quiet(bus, silence, silence + MBFB_QUIET_LIMIT_T * bus->timeout_us);
+    if (n < 0)
+        return n;
+    if (n > 0)
+        __atomic_fetch_add(&bus->stray_bytes, (uint32_t)n, __ATOMIC_RELAXED);
+    return 0;
+}
+
 /* One transaction with its retries. Returns MBFB_OK, a positive MBFB_E_* code, or
- * -MBFB_E_PORTLOST. */
+ * -MBFB_E_PORTLOST. *failed counts the attempts that got no valid answer. */
 static int transact(mbfb_bus_t *bus, mbfb_dev_t *dev, mbfb_slot_t *s, const uint8_t *req,
-                    int len, int attempts)
+                    int len, int attempts, int *failed)
 {
     uint8_t rsp[MBFB_FRAME_MAX];
     int err = MBFB_E_TIMEOUT;
@@ -53,8 +75,8 @@ static int transact(mbfb_bus_t *bus, mbfb_dev_t *dev, mbfb_slot_t *s, const uint
 
         if (a > 0)
             MBFB_DIAG_INC(dev, retries);
-        mbfb_sleep_until_us(bus->quiet_from_us + bus->timing.gap_us);
-        bus->be->flush(bus);
+        if (wait_quiet(bus, a == 0) < 0)
+            return -MBFB_E_PORTLOST;
         t0 = mbfb_now_us();
         if (bus->be->send(bus, req, len) < 0)
             return -MBFB_E_PORTLOST;
@@ -82,7 +104,9 @@ static int transact(mbfb_bus_t *bus, mbfb_dev_t *dev, mbfb_slot_t *s, const uint
             return err;
         }
         count_failure(dev, err);
-        bus->be->resync(bus);
+        ++*failed;
+        if (bus->be->resync != NULL)
+            bus->be->resync(bus);
         if (bus->ctx == NULL)
             return -MBFB_E_PORTLOST; /* TCP reconnect failed */
     }
@@ -114,7 +138,7 @@ static void run_request(mbfb_bus_t *bus, mbfb_slot_t *s)
 {
     mbfb_dev_t *dev = mbfb_devs[s->dev];
     uint8_t req[MBFB_FRAME_MAX];
-    int len, rc, offline = dev->probe_ms > 0;
+    int len, rc, failed = 0, offline = dev->probe_ms > 0;
 
     if (offline && mbfb_now_us() < dev->next_probe_us) { /* back-off: no bus time */
         set_error(dev, MBFB_E_OFFLINE);
@@ -133,7 +157,8 @@ static void run_request(mbfb_bus_t *bus, mbfb_slot_t *s)
                                                      mbfb_reply_len(req));
     MBFB_DIAG_INC(dev, requests);
     /* an offline device gets a single-attempt probe */
-    rc = transact(bus, dev, s, req, len, offline ? 1 : 1 + bus->cfg.retries);
+    rc = transact(bus, dev, s, req, len, offline ? 1 : 1 + bus->cfg.retries, &failed);
+    bus->settle_us = failed > 0 ? bus->timeout_us : 0;
     if (rc == -MBFB_E_PORTLOST) {
         port_lost(bus, dev, s);
         return;

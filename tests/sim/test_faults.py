@@ -55,6 +55,27 @@ def test_late_reply_arrives_after_the_timeout(sim, raw_factory):
     assert time.monotonic() - t0 >= 0.6
 
 
+def test_late_device_is_busy_until_it_has_replied(sim, raw_factory):
+    """A late half-duplex device does not hear the master's retry (nor anything else
+    addressed to it) until its reply is out: one request, one reply, never two."""
+    raw = raw_factory(sim.port)
+    before = sim.ctl("stats")["devices"]
+    sim.ctl("fault", addr=1, kind="late", delay_ms=700)
+    t0 = time.monotonic()
+    assert raw.xfer(READ, wait=0.2) == b""                 # times out ...
+    assert hexu(raw.xfer(crc("02 03 00 00 00 01"), wait=0.1)) == crc("02 03 02 00 64")
+    assert time.monotonic() - t0 < 0.65, "slow machine: the late reply may have come"
+    retry = raw.xfer(crc("01 03 00 01 00 01"), wait=1.0)    # ... a retry (another register)
+    assert hexu(retry) == GOOD                              # only the late reply to READ
+    assert hexu(raw.xfer(READ)) == GOOD                     # free again once it has replied
+    stats = sim.ctl("stats")["devices"]
+    delta = lambda a, k: stats[a][k] - before[a][k]
+    assert delta("1", "busy_ignored") == 1 and delta("2", "busy_ignored") == 0
+    assert delta("1", "faults_applied") == 1 and delta("1", "replies") == 2
+    rx1 = [f for f in sim.log() if f["dir"] == "rx" and f["hex"].startswith("01 03")]
+    assert [f.get("info") for f in rx1] == [None, "busy: late reply pending", None]
+
+
 def test_wrong_slave_has_a_valid_crc(sim, raw_factory):
     sim.ctl("fault", addr=1, kind="wrong_slave", slave=9)
     assert hexu(raw_factory(sim.port).xfer(READ)) == crc("09 03 02 03 E8")
@@ -93,6 +114,15 @@ def test_count_skip_and_only_that_device(sim, raw_factory):
     sim.ctl("fault", addr=1, kind="drop", count=-1)
     assert raw.xfer(READ, wait=0.15) == b"" and raw.xfer(READ, wait=0.15) == b""
     assert hexu(raw.xfer(crc("02 03 00 00 00 01"))) == crc("02 03 02 00 64")
+
+
+def test_fault_for_one_function_code(sim, raw_factory):
+    raw = raw_factory(sim.port)
+    sim.ctl("fault", addr=1, kind="exception", code=4, fc=4)
+    assert hexu(raw.xfer(READ)) == GOOD                      # FC03 passes untouched
+    assert hexu(raw.xfer(crc("01 04 10 00 00 01"))) == crc("01 84 04")
+    assert sim.ctl("stats")["devices"]["1"]["faults_pending"] == 0
+    assert not sim.control({"op": "fault", "addr": 1, "kind": "drop", "fc": 0})["ok"]
 
 
 def _pattern(seed):

@@ -45,11 +45,18 @@ class LineSettings:
 
 @dataclass
 class Reply:
-    """A reply a device makes: PDU, the address it answers with, and the fault to apply."""
+    """A reply a device makes: PDU, the address it answers with, and the fault to apply.
+    The transport calls sent() once the reply is out (or will never be): a device with a
+    late reply pending is busy until then."""
     addr: int
     pdu: bytes
     fault: object = None
     queue: object = None            # the device's FaultQueue (shapes the faulty frame)
+    dev: object = None
+
+    def sent(self):
+        if self.dev is not None and self.fault is not None and self.fault.kind == "late":
+            self.dev.late_pending -= 1
 
 
 class Bus:
@@ -64,6 +71,8 @@ class Bus:
         for dev in devices:
             dev.fault_queue = self.faults[dev.addr]
             dev.offline = False
+            dev.late_pending = 0        # late replies scheduled and not yet sent
+            dev.busy_ignored = 0        # requests it did not hear meanwhile
         self.log = deque(maxlen=4000)
         self.t0 = time.monotonic()
         self.counters = {"rx_frames": 0, "tx_frames": 0, "bad_frames": 0, "foreign": 0,
@@ -114,7 +123,14 @@ class Bus:
         if dev.offline or not dev.line_matches():
             dev.stats["ignored"] += 1
             return None
-        fault = dev.fault_queue.next()
+        if dev.late_pending:
+            # A half-duplex instrument that has not sent its reply yet is busy: it neither
+            # hears nor answers another request (the master's retry included).
+            dev.busy_ignored += 1
+            if self.log and self.log[-1]["dir"] == "rx":   # recorded just before this call
+                self.log[-1]["info"] = "busy: late reply pending"
+            return None
+        fault = dev.fault_queue.next(pdu[0])
         if fault is not None:
             dev.stats["faults_applied"] += 1
         if fault is not None and fault.kind == "exception":
@@ -126,7 +142,9 @@ class Bus:
         if pdu_out is None:
             return None
         dev.stats["replies"] += 1
-        return Reply(reply_addr, pdu_out, fault, dev.fault_queue)
+        if fault is not None and fault.kind == "late":
+            dev.late_pending += 1
+        return Reply(reply_addr, pdu_out, fault, dev.fault_queue, dev)
 
     def bad_frame(self):
         self.counters["bad_frames"] += 1
@@ -136,6 +154,7 @@ class Bus:
         for dev in self.devices:
             entry = dev.describe()
             entry["offline"] = dev.offline
+            entry["busy_ignored"] = dev.busy_ignored
             entry["faults"] = {k: v for k, v in dev.fault_queue.applied.items() if v}
             entry["faults_pending"] = len(dev.fault_queue.pending)
             devs[str(dev.addr)] = entry

@@ -3,7 +3,9 @@
 A fault spec (control 'fault' op, or an entry of --faults FILE):
   {"addr": 1, "kind": K, "count": N, "skip": S, "prob": P, ...kind parameters}
 applies to the device's next N replies (count -1 = until cleared) after letting S replies pass;
-with prob < 1 each reply is hit with that probability (from the device's seeded generator).
+with prob < 1 each reply is hit with that probability (from the device's seeded generator);
+with "fc": F only replies to function code F count (the others pass untouched).
+A device with a late reply pending is busy: it ignores requests until the reply is out (bus.py).
 Kinds and parameters:
   drop                         no reply (the request is still applied)
   bad_crc                      CRC (RTU) or LRC (ASCII) made wrong
@@ -35,8 +37,11 @@ class Fault:
         self.nbytes = int(spec.get("bytes", 3))
         self.where = spec.get("where", "before")
         self.code = int(spec.get("code", 4))
+        self.fc = None if spec.get("fc") is None else int(spec["fc"])
         if not 0 <= self.prob <= 1 or self.count == 0 or self.where not in ("before", "after", "both"):
             raise ValueError("bad fault parameters (prob 0..1, count != 0, where before/after/both)")
+        if self.fc is not None and not 1 <= self.fc <= 127:
+            raise ValueError("fc must be a function code 1..127")
         if self.kind == "exception" and not 1 <= self.code <= 255:
             raise ValueError("exception code must be 1..255")
 
@@ -58,9 +63,11 @@ class FaultQueue:
         self.pending.append(fault)
         return fault
 
-    def next(self) -> Fault | None:
-        """Fault for the reply about to be made (None: answer normally)."""
+    def next(self, fc: int | None = None) -> Fault | None:
+        """Fault for the reply about to be made to function fc (None: answer normally)."""
         for fault in self.pending:
+            if fault.fc is not None and fault.fc != fc:
+                continue
             if fault.skip > 0:
                 fault.skip -= 1
                 return None

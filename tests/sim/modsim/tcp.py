@@ -67,17 +67,20 @@ class TcpLine:
                 if out is None:
                     self.bus.record("tx", b"", "drop")
                     continue
-                asyncio.ensure_future(self._send(writer, out, delay, info))
+                asyncio.ensure_future(self._send(writer, out, delay, info, reply.sent))
         except (asyncio.IncompleteReadError, ConnectionError):
             pass
         finally:
             self.writers.discard(writer)
             writer.close()
 
-    async def _send(self, writer, data, delay, info):
-        if delay:
-            await asyncio.sleep(delay)
-        if writer.is_closing():
-            return
-        self.bus.record("tx", data, info)
-        writer.write(data)
+    async def _send(self, writer, data, delay, info, sent):
+        try:
+            if delay:
+                await asyncio.sleep(delay)
+            if writer.is_closing():
+                return
+            self.bus.record("tx", data, info)
+            writer.write(data)
+        finally:
+            sent()                      # the device is free again (late replies: busy till now)

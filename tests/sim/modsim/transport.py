@@ -220,7 +220,7 @@ class SerialLine:
         if out is None:
             self.bus.record("tx", b"", "drop")
             return
-        asyncio.ensure_future(self._send(out, delay, info, self.generation))
+        asyncio.ensure_future(self._send(out, delay, info, self.generation, reply.sent))
 
     # ----- transmit: whole frame, or paced at the character time with a turnaround -----
     def line_stats(self) -> dict:
@@ -229,7 +229,13 @@ class SerialLine:
                     "tests/sim/ptyline built (--ptyline PATH or MBFB_PTYLINE)"}
         return {"available": True, "stats": self.ptyline.stats()}
 
-    async def _send(self, data: bytes, delay: float, info: str, generation: int):
+    async def _send(self, data: bytes, delay: float, info: str, generation: int, sent):
+        try:
+            await self._transmit(data, delay, info, generation)
+        finally:
+            sent()                      # the device is free again (late replies: busy till now)
+
+    async def _transmit(self, data: bytes, delay: float, info: str, generation: int):
         if self.pace and self.ptyline is None:
             delay += self.line.t35 + self.rng.uniform(0.001, 0.010)   # 1..10 ms turnaround
         if delay > 0:
