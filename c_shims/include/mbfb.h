@@ -134,8 +134,8 @@ typedef struct mbfb_diag {
     uint32_t offline;         /* 1 while the device is in back-off                    */
     int32_t  last_error;      /* last MBFB_E_* code on this device (0 = none)         */
     uint32_t stray_bytes;     /* bytes heard on this device's BUS outside any reply
-                                 (late replies, noise), read and discarded before a
-                                 request; the same count for every device of the bus  */
+                                 (late replies, noise), read and discarded; the same
+                                 count for every device of the bus                    */
 } mbfb_diag_t;
 
 /** Copy the device's diagnostics into *out. Returns 0 or -MBFB_E_BADHANDLE. */

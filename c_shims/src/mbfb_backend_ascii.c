@@ -51,7 +51,7 @@ static int ascii_recv(mbfb_bus_t *bus, const uint8_t *req, uint8_t *frame, int m
     int64_t end_by = start_by + bus->timing.byte_us +   /* and its frame end by then */
                      (int64_t)mbfb_wire_len(MBFB_FRAMING_ASCII, MBFB_FRAME_MAX) *
                          bus->timing.char_us;
-    int state = A_IDLE, nhex = 0, got_any = 0, hi = 0;
+    int state = A_IDLE, nhex = 0, got_any = 0, hi = 0, skipped = 0;
     uint8_t bin[MBFB_FRAME_MAX + 1];
 
     (void)req;
@@ -61,9 +61,9 @@ static int ascii_recv(mbfb_bus_t *bus, const uint8_t *req, uint8_t *frame, int m
         int64_t wait = got_any ? bus->timing.byte_us : limit - now;
         ssize_t n;
 
-        if (wait > limit - now) /* noise never ends the wait by itself */
+        if (wait > limit - now) /* noise never prolongs the wait */
             wait = limit - now;
-        if (mbfb_fd_wait_input(bus->fd, wait) <= 0)
+        if (wait <= 0 || mbfb_fd_wait_input(bus->fd, wait) <= 0)
             return got_any ? -MBFB_E_BADREPLY : -MBFB_E_TIMEOUT; /* truncated / none */
         n = read(bus->fd, chunk, sizeof chunk);
         if (n < 0 && (errno == EAGAIN || errno == EINTR))
@@ -74,6 +74,8 @@ static int ascii_recv(mbfb_bus_t *bus, const uint8_t *req, uint8_t *frame, int m
         for (ssize_t i = 0; i < n; i++) {
             int c = chunk[i] & 0x7F, v;
             if (c == ':') {            /* a colon always starts a frame */
+                if (state != A_IDLE)   /* an unfinished one is dropped */
+                    skipped += 1 + nhex + (state == A_CR);
                 state = A_HEX;
                 nhex = 0;
             } else if (state == A_HEX && c == '\r') {
@@ -93,9 +95,13 @@ static int ascii_recv(mbfb_bus_t *bus, const uint8_t *req, uint8_t *frame, int m
                     return -MBFB_E_CRC;
                 for (int k = 0; k < len; k++)
                     frame[k] = bin[k];
+                /* noise before it and what came after it in this read: discarded */
+                MBFB_STRAY_ADD(bus, skipped + (int)(n - i - 1));
                 return len;
             } else if (state != A_IDLE) {
                 return -MBFB_E_BADREPLY; /* garbage inside a frame */
+            } else {
+                skipped++;
             }
         }
     }

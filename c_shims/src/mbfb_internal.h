@@ -170,7 +170,7 @@ typedef struct mbfb_bus {
     int settle_us;           /* silence owed before the next request: the response
                                 timeout of a transaction that had a failed attempt
                                 (its late reply may still come), else 0           */
-    uint32_t stray_bytes;    /* atomic: bytes discarded by quiet() (diag)          */
+    uint32_t stray_bytes;    /* atomic: bytes discarded outside replies (diag)     */
     int stop;                /* atomic: worker exits                              */
     uint32_t post_seq;       /* atomic: next sequence number                      */
     sem_t wake;              /* posted by mbfb_post, waited on by the worker      */
@@ -194,6 +194,9 @@ void *mbfb_worker_main(void *arg);
 /* diag helpers (worker writes, scan reads, all with __atomic) */
 #define MBFB_DIAG_INC(d, f) __atomic_fetch_add(&(d)->diag.f, 1u, __ATOMIC_RELAXED)
 #define MBFB_DIAG_SET(d, f, v) __atomic_store_n(&(d)->diag.f, (v), __ATOMIC_RELAXED)
+/* bytes heard outside any reply and discarded (bus-wide diag.stray_bytes) */
+#define MBFB_STRAY_ADD(b, n) \
+    __atomic_fetch_add(&(b)->stray_bytes, (uint32_t)(n), __ATOMIC_RELAXED)
 
 #ifdef __cplusplus
 }

@@ -56,8 +56,7 @@ static int wait_quiet(mbfb_bus_t *bus, int first)
     n = bus->be->quiet(bus, silence, silence + MBFB_QUIET_LIMIT_T * bus->timeout_us);
     if (n < 0)
         return n;
-    if (n > 0)
-        __atomic_fetch_add(&bus->stray_bytes, (uint32_t)n, __ATOMIC_RELAXED);
+    MBFB_STRAY_ADD(bus, n);
     return 0;
 }
 

@@ -56,6 +56,7 @@ typedef struct peer_reply {
     uint8_t out[PEER_BUF];
     int len;                  /* bytes to write; 0 = stay silent */
     int delay_ms;             /* wait this long before writing     */
+    int pace_us;              /* > 0: one byte, then this pause (a slow line) */
 } peer_reply_t;
 
 struct peer;
@@ -83,6 +84,16 @@ typedef struct peer {
     /* a tiny register bank for peer_answer(); slaves 0..7, registers 0..255 */
     uint16_t regs[8][256];
     int dead[256];            /* peer_answer stays silent for these slaves        */
+    int collisions;           /* __atomic: request bytes came in while a paced reply
+                                 was still going out (a collision on RS-485)       */
+    int paced_sent;           /* __atomic: bytes of the current paced reply sent   */
+    /* babbler: a second talker on the line (noise, another master, a broken unit) */
+    pthread_t babbler;
+    int babbling, babble_stop;                 /* babble_stop: __atomic            */
+    uint8_t pattern[64];
+    int pattern_len, interval_us;
+    long babble_max;                           /* 0 = until stopped                */
+    long babbled;                              /* __atomic: bytes written          */
 } peer_t;
 
 /** Start a peer on a new pty; `link` becomes a symlink to it (replaced if present). */
@@ -104,6 +115,14 @@ void peer_reply_raw(peer_reply_t *r, const uint8_t *bytes, int len);
 /** Change the register bank / silence a slave while the peer runs. */
 void peer_set_reg(peer_t *p, int slave, int addr, uint16_t value);
 void peer_set_dead(peer_t *p, int slave, int dead);
+/** Start writing `pattern` over and over, one byte every interval_us, `max` bytes in
+ *  all (0 = until peer_babble_stop). */
+int peer_babble_start(peer_t *p, const uint8_t *pattern, int len, int interval_us, long max);
+/** Wait for the babbler to finish (max reached) or stop it; returns bytes written. */
+long peer_babble_stop(peer_t *p);
+long peer_babbled(peer_t *p);
+int peer_collisions(peer_t *p);
+int peer_paced_sent(peer_t *p);
 /** A well-behaved device from the register bank. */
 void peer_answer(peer_t *p, int n, const uint8_t *frame, int flen, peer_reply_t *r);
 
@@ -120,7 +139,14 @@ int t_run(int dev, int fc, int addr, int count, const uint16_t *vals, uint16_t *
 /** Bus config helper. */
 mbfb_bus_config_t t_cfg(const char *port, int baud, int framing, int timeout_ms,
                         int retries);
+/** Start peer p on t_tmpdir()/port in the framing's mode (ASCII: the bus is 7E1, the
+ *  Modbus ASCII default), registers of slave 1 = 0x1000 + address, open a bus with
+ *  t_cfg(baud, framing, timeout_ms, retries). Returns the device handle of slave 1. */
+int t_serial_dev(peer_t *p, peer_fn fn, int framing, int baud, int timeout_ms, int retries);
+/** mbfb_dev_diag with a CHECK that it worked. */
+mbfb_diag_t t_diag(int dev);
 void t_sleep_ms(int ms);
+void t_sleep_us(long us);
 int64_t t_now_us(void);
 /** A fresh temporary directory for pty links; returns path (static). */
 const char *t_tmpdir(void);

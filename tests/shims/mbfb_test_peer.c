@@ -79,11 +79,16 @@ int64_t t_now_us(void)
     return (int64_t)ts.tv_sec * 1000000 + ts.tv_nsec / 1000;
 }
 
-void t_sleep_ms(int ms)
+void t_sleep_us(long us)
 {
-    struct timespec ts = {ms / 1000, (long)(ms % 1000) * 1000000L};
+    struct timespec ts = {us / 1000000, (us % 1000000) * 1000L};
     while (nanosleep(&ts, &ts) == -1 && errno == EINTR) {
     }
+}
+
+void t_sleep_ms(int ms)
+{
+    t_sleep_us((long)ms * 1000);
 }
 
 const char *t_tmpdir(void)
@@ -182,6 +187,32 @@ static int decode(peer_t *p, const uint8_t *raw, int len, uint8_t *frame)
     return t_hex(hex, frame) - 1; /* without the LRC */
 }
 
+static void write_all(peer_t *p, const uint8_t *buf, int len)
+{
+    if (len > 0 && write(p->master, buf, (size_t)len) != len)
+        fprintf(stderr, "peer: short write\n");
+}
+
+/* Send a reply, at once or paced; a request byte waiting before a paced byte goes out
+ * means the master talked while this reply was still on the line. */
+static void peer_write(peer_t *p, const peer_reply_t *r)
+{
+    if (r->pace_us <= 0) {
+        write_all(p, r->out, r->len);
+        return;
+    }
+    __atomic_store_n(&p->paced_sent, 0, __ATOMIC_RELEASE);
+    for (int i = 0; i < r->len; i++) {
+        struct pollfd pf = {p->master, POLLIN, 0};
+        if (i > 0 && poll(&pf, 1, 0) > 0)
+            __atomic_fetch_add(&p->collisions, 1, __ATOMIC_RELAXED);
+        write_all(p, r->out + i, 1);
+        __atomic_fetch_add(&p->paced_sent, 1, __ATOMIC_RELEASE);
+        if (i + 1 < r->len)
+            t_sleep_us(r->pace_us);
+    }
+}
+
 static void *peer_main(void *arg)
 {
     peer_t *p = (peer_t *)arg;
@@ -208,8 +239,7 @@ static void *peer_main(void *arg)
             p->fn(p, n, frame, flen, &r);
         if (r.delay_ms)
             t_sleep_ms(r.delay_ms);
-        if (r.len > 0 && write(p->master, r.out, (size_t)r.len) != r.len)
-            fprintf(stderr, "peer: short write\n");
+        peer_write(p, &r);
     }
     return NULL;
 }
@@ -237,8 +267,65 @@ int peer_start(peer_t *p, const char *link, int mode, peer_fn fn, void *user)
     return pthread_create(&p->th, NULL, peer_main, p) == 0 ? 0 : -1;
 }
 
+static void *babble_main(void *arg)
+{
+    peer_t *p = (peer_t *)arg;
+    for (long i = 0; !__atomic_load_n(&p->babble_stop, __ATOMIC_ACQUIRE) &&
+                     (p->babble_max == 0 || i < p->babble_max);
+         i++) {
+        write_all(p, &p->pattern[i % p->pattern_len], 1);
+        __atomic_fetch_add(&p->babbled, 1, __ATOMIC_RELEASE);
+        t_sleep_us(p->interval_us);
+    }
+    return NULL;
+}
+
+int peer_babble_start(peer_t *p, const uint8_t *pattern, int len, int interval_us, long max)
+{
+    if (p->babbling || len <= 0 || len > (int)sizeof p->pattern)
+        return -1;
+    memcpy(p->pattern, pattern, (size_t)len);
+    p->pattern_len = len;
+    p->interval_us = interval_us;
+    p->babble_max = max;
+    __atomic_store_n(&p->babbled, 0, __ATOMIC_RELEASE);
+    __atomic_store_n(&p->babble_stop, 0, __ATOMIC_RELEASE);
+    if (pthread_create(&p->babbler, NULL, babble_main, p) != 0)
+        return -1;
+    p->babbling = 1;
+    return 0;
+}
+
+long peer_babble_stop(peer_t *p)
+{
+    if (p->babbling) {
+        if (p->babble_max == 0)
+            __atomic_store_n(&p->babble_stop, 1, __ATOMIC_RELEASE);
+        pthread_join(p->babbler, NULL);
+        p->babbling = 0;
+    }
+    return peer_babbled(p);
+}
+
+long peer_babbled(peer_t *p)
+{
+    return __atomic_load_n(&p->babbled, __ATOMIC_ACQUIRE);
+}
+
+int peer_collisions(peer_t *p)
+{
+    return __atomic_load_n(&p->collisions, __ATOMIC_RELAXED);
+}
+
+int peer_paced_sent(peer_t *p)
+{
+    return __atomic_load_n(&p->paced_sent, __ATOMIC_ACQUIRE);
+}
+
 void peer_stop(peer_t *p)
 {
+    __atomic_store_n(&p->babble_stop, 1, __ATOMIC_RELEASE);
+    peer_babble_stop(p);
     __atomic_store_n(&p->stop, 1, __ATOMIC_RELEASE);
     pthread_join(p->th, NULL);
     /* the port disappears, as a pulled USB adapter's device node does; a dangling link
@@ -418,4 +505,36 @@ mbfb_bus_config_t t_cfg(const char *port, int baud, int framing, int timeout_ms,
     c.response_timeout_ms = timeout_ms;
     c.retries = retries;
     return c;
+}
+
+int t_serial_dev(peer_t *p, peer_fn fn, int framing, int baud, int timeout_ms, int retries)
+{
+    char link[160];
+    mbfb_bus_config_t c;
+    int bus;
+
+    snprintf(link, sizeof link, "%s/port", t_tmpdir());
+    if (peer_start(p, link, framing == MBFB_FRAMING_ASCII ? PEER_ASCII : PEER_RTU, fn,
+                   NULL) != 0) {
+        perror("peer_start");
+        return -1;
+    }
+    for (int i = 0; i < 256; i++)
+        peer_set_reg(p, 1, i, (uint16_t)(0x1000 + i));
+    c = t_cfg(p->link, baud, framing, timeout_ms, retries);
+    if (framing == MBFB_FRAMING_ASCII) { /* the Modbus ASCII default: 7E1 */
+        c.data_bits = 7;
+        c.parity = 'E';
+    }
+    bus = mbfb_bus_open(&c);
+    CHECK(bus >= 0);
+    return mbfb_dev_open(bus, 1);
+}
+
+mbfb_diag_t t_diag(int dev)
+{
+    mbfb_diag_t d;
+    memset(&d, 0xEE, sizeof d);
+    CHECK_EQ(mbfb_dev_diag(dev, &d), 0);
+    return d;
 }

@@ -1,0 +1,228 @@
+/*
+ * test_late.c - late replies and a talking line are harmless, for each serial framing
+ * (RTU via libmodbus, ASCII and RTU-without-CRC written here), against a scripted peer
+ * on a pty. Before every request the shims wait until the line has been silent (the
+ * gap, or a whole response timeout after a failed transaction), reading, discarding and
+ * counting every byte that arrives meanwhile (diag.stray_bytes):
+ *   late_in_wait     a late reply arrives while the next request waits for silence
+ *   late_trickling   a late reply still trickles in when the next request is due
+ *   babble_short     another talker fills the line (with a valid-looking but wrong
+ *                    answer, over and over) when the next request is due
+ *   babble_forever   the line never falls silent: the wait is bounded, the request goes
+ *                    out anyway, garbage is never taken as an answer, the bus goes on
+ * In each: the next request gets its own answer, nothing wrong is accepted, the stray
+ * bytes are counted exactly, and the peer never hears a request while it is talking.
+ * 600 baud: gap = 44 bit times = 73 ms, so the 1..30 ms pauses of the talkers here are
+ * far from silence even on a loaded machine.
+ */
+#include <string.h>
+
+#include "mbfb_test.h"
+
+/* Response timeout. OpenPLC's libmodbus fork sleeps for the request's transmission
+ * time inside its RTU send (8 bytes at 600 baud: 133 ms), so a request's timeout
+ * fires 400..533 ms after it was handed to the line, depending on flavour/framing. */
+#define T_MS 400
+#define BAUD 600
+
+static peer_t P;
+static int framing;
+static int late_ms, pace_us;
+
+/* Bytes of a one-register read reply in this framing. */
+static int reply_bytes(void)
+{
+    return framing == MBFB_FRAMING_ASCII ? 1 + 2 * 6 + 2 : 7;
+}
+
+static int setup(peer_fn fn, int retries)
+{
+    return t_serial_dev(&P, fn, framing, BAUD, T_MS, retries);
+}
+
+static void teardown(void)
+{
+    mbfb_shutdown();
+    peer_stop(&P);
+}
+
+/* Request 0 is answered late_ms late, one byte every pace_us; the rest at once. */
+static void late_first(peer_t *p, int n, const uint8_t *f, int len, peer_reply_t *r)
+{
+    peer_answer(p, n, f, len, r);
+    if (n == 0) {
+        r->delay_ms = late_ms;
+        r->pace_us = pace_us;
+    }
+}
+
+/* Post a read of register `reg` once `ready` holds (polled every millisecond). */
+static int post_when(int dev, int reg, int (*ready)(void))
+{
+    int64_t end = t_now_us() + 10000000;
+    while (!ready() && t_now_us() < end)
+        t_sleep_ms(1);
+    CHECK(ready());
+    return mbfb_post(dev, 3, reg, 1, NULL);
+}
+
+static int take(int h, uint16_t *v)
+{
+    CHECK(t_wait(h) >= MBFB_REQ_DONE);
+    return mbfb_take(h, v, 1);
+}
+
+static int late_started(void)
+{
+    return peer_paced_sent(&P) > 0;
+}
+
+static int babble_started(void)
+{
+    return peer_babbled(&P) > 0;
+}
+
+/* Diagnostics after a scenario: good replies and timeouts as expected, nothing garbled
+ * was read as a reply, every stray byte counted, the peer never talked over. */
+static void check_clean(int dev, int good, int timeouts, int stray)
+{
+    mbfb_diag_t d = t_diag(dev);
+    CHECK_EQ(d.good, good);
+    CHECK_EQ(d.timeouts, timeouts);
+    CHECK_EQ(d.crc_errors + d.bad_replies, 0);
+    CHECK_EQ(d.stray_bytes, stray);
+    CHECK_EQ(peer_collisions(&P), 0);
+}
+
+/* The first request times out; its reply starts 700 ms after it was sent, while the
+ * next request waits for a timeout of silence (from 400..533 to 800..933 ms), and
+ * trickles in over 35..75 ms. */
+static void late_in_wait(void)
+{
+    uint16_t v[1] = {0};
+    int dev, h;
+
+    late_ms = T_MS * 7 / 4;
+    pace_us = 5000;
+    dev = setup(late_first, 0);
+    CHECK_EQ(t_run(dev, 3, 0, 1, NULL, v, 1), -MBFB_E_TIMEOUT);
+    h = mbfb_post(dev, 3, 1, 1, NULL);
+    CHECK_EQ(peer_paced_sent(&P), 0); /* posted before the late reply began */
+    CHECK_EQ(take(h, v), 1);
+    CHECK_EQ(v[0], 0x1001);
+    CHECK_EQ(peer_count(&P), 2);
+    check_clean(dev, 1, 1, reply_bytes());
+    teardown();
+}
+
+/* The late reply is still trickling in (30 ms per byte) when the next request is
+ * posted: the request waits until it is over and the line has been silent. */
+static void late_trickling(void)
+{
+    uint16_t v[1] = {0};
+    int dev, h;
+
+    late_ms = T_MS * 5 / 2;
+    pace_us = 30000;
+    dev = setup(late_first, 0);
+    CHECK_EQ(t_run(dev, 3, 0, 1, NULL, v, 1), -MBFB_E_TIMEOUT);
+    h = post_when(dev, 1, late_started);
+    CHECK(peer_paced_sent(&P) < reply_bytes()); /* posted while it was coming in */
+    CHECK_EQ(take(h, v), 1);
+    CHECK_EQ(v[0], 0x1001);
+    CHECK_EQ(peer_count(&P), 2);
+    check_clean(dev, 1, 1, reply_bytes());
+    teardown();
+}
+
+/* A valid-looking answer to the same question with a wrong value, in this framing. */
+static int wrong_answer(uint8_t *out)
+{
+    peer_reply_t r;
+    memset(&r, 0, sizeof r);
+    peer_reply_hex(&P, &r, "01 03 02 DE AD");
+    memcpy(out, r.out, (size_t)r.len);
+    return r.len;
+}
+
+/* Someone else talks (six copies of a wrong answer, a byte every 2 ms) when the
+ * request is due: it goes out after the talk and gets its own answer. */
+static void babble_short(void)
+{
+    uint8_t pat[PEER_BUF];
+    uint16_t v[1] = {0};
+    int dev, h, len;
+    long talked;
+
+    dev = setup(peer_answer, 0);
+    CHECK_EQ(t_run(dev, 3, 0, 1, NULL, v, 1), 1); /* the port is open and quiet */
+    len = wrong_answer(pat);
+    CHECK_EQ(peer_babble_start(&P, pat, len, 2000, 6L * len), 0);
+    h = post_when(dev, 1, babble_started);
+    CHECK_EQ(take(h, v), 1);
+    CHECK_EQ(v[0], 0x1001);
+    talked = peer_babble_stop(&P);
+    CHECK_EQ(talked, 6L * len);
+    check_clean(dev, 2, 0, (int)talked); /* every byte heard before the request */
+    CHECK_EQ(t_diag(dev).retries, 0);
+    teardown();
+}
+
+/* The line never falls silent (0xFF every millisecond) and the device is dead: each
+ * attempt waits at most silence + 3 timeouts, goes out anyway, and fails on garbage;
+ * the request ends while the line still babbles. Then the line calms down and the
+ * device answers again. */
+static void babble_forever(void)
+{
+    static const uint8_t ff = 0xFF;
+    uint16_t v[1] = {0};
+    int dev, h, rc;
+    mbfb_diag_t d;
+
+    dev = setup(peer_answer, 1);
+    CHECK_EQ(t_run(dev, 3, 0, 1, NULL, v, 1), 1);
+    peer_set_dead(&P, 1, 1);
+    CHECK_EQ(peer_babble_start(&P, &ff, 1, 1000, 0), 0);
+    h = post_when(dev, 2, babble_started);
+    v[0] = 0;
+    rc = take(h, v);
+    CHECK(rc == -MBFB_E_BADREPLY || rc == -MBFB_E_CRC || rc == -MBFB_E_TIMEOUT);
+    CHECK_EQ(v[0], 0);                     /* nothing taken from the babble    */
+    CHECK_EQ(peer_count(&P), 3);           /* both attempts went out anyway    */
+    d = t_diag(dev);
+    CHECK(d.stray_bytes > 0);
+    CHECK_EQ(d.retries, 1);
+    CHECK_EQ(d.good, 1);
+    CHECK(peer_babbled(&P) > 0);
+    peer_babble_stop(&P);                  /* only now does the line go quiet  */
+    peer_set_dead(&P, 1, 0);
+    CHECK_EQ(t_run(dev, 3, 3, 1, NULL, v, 1), 1);
+    CHECK_EQ(v[0], 0x1003);
+    teardown();
+}
+
+int main(void)
+{
+    static const struct { int framing; const char *name; } framings[] = {
+        {MBFB_FRAMING_RTU, "rtu"},
+        {MBFB_FRAMING_ASCII, "ascii"},
+        {MBFB_FRAMING_RTU_NOCRC, "rtu-nocrc"},
+    };
+    static const struct { void (*fn)(void); const char *name; } scenarios[] = {
+        {late_in_wait, "late reply during the wait"},
+        {late_trickling, "late reply still trickling"},
+        {babble_short, "another talker"},
+        {babble_forever, "babbling line"},
+    };
+    char name[96];
+
+    for (size_t f = 0; f < sizeof framings / sizeof framings[0]; f++) {
+        framing = framings[f].framing;
+        for (size_t s = 0; s < sizeof scenarios / sizeof scenarios[0]; s++) {
+            snprintf(name, sizeof name, "%s: %s", framings[f].name, scenarios[s].name);
+            t_scenario = name;
+            scenarios[s].fn();
+        }
+    }
+    return t_done("test_late");
+}
