@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import os
 import re
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -59,19 +60,22 @@ def main() -> int:
 
     spec = sim_spec(args.st)
     tmp = tempfile.mkdtemp(prefix="fbtest-")
-    link = os.path.join(tmp, "ttySIM")
-    with Simulator(spec["devices"], baud=int(spec["baud"]), fmt=spec["format"],
-                   time_scale=float(spec["time-scale"]), link=link) as sim:
-        env = dict(os.environ, MBFB_TEST_PORT=link, MBFB_SIM_CONTROL=sim.control_path)
-        try:
-            proc = subprocess.run([args.exe], env=env, timeout=args.timeout)
-            rc = proc.returncode
-        except subprocess.TimeoutExpired:
-            print(f"FAIL: {args.exe} still running after {args.timeout} s (killed)")
-            rc = 1
-        if rc != 0:
-            print("--- simulator stderr (tail) ---")
-            print(sim.stderr()[-3000:])
+    try:
+        link = os.path.join(tmp, "ttySIM")
+        with Simulator(spec["devices"], baud=int(spec["baud"]), fmt=spec["format"],
+                       time_scale=float(spec["time-scale"]), link=link) as sim:
+            env = dict(os.environ, MBFB_TEST_PORT=link, MBFB_SIM_CONTROL=sim.control_path)
+            try:
+                proc = subprocess.run([args.exe], env=env, timeout=args.timeout)
+                rc = proc.returncode
+            except subprocess.TimeoutExpired:
+                print(f"FAIL: {args.exe} still running after {args.timeout} s (killed)")
+                rc = 1
+            if rc != 0:
+                print("--- simulator stderr (tail) ---")
+                print(sim.stderr()[-3000:])
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
     return 0 if rc == 0 else 1
 
 
