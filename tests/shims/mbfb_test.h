@@ -145,6 +145,17 @@ mbfb_bus_config_t t_cfg(const char *port, int baud, int framing, int timeout_ms,
 int t_serial_dev(peer_t *p, peer_fn fn, int framing, int baud, int timeout_ms, int retries);
 /** mbfb_dev_diag with a CHECK that it worked. */
 mbfb_diag_t t_diag(int dev);
+/** Bytes on the wire of a reply to a read of `nregs` registers in a serial framing. */
+int t_read_reply_bytes(int framing, int nregs);
+
+/** A named test scenario; run for each serial framing by t_serial_scenarios. */
+typedef struct t_case {
+    void (*fn)(void);
+    const char *name;
+} t_case_t;
+/** Run every case for RTU, ASCII and RTU-without-CRC in turn (setting *framing and
+ *  t_scenario first); returns t_done(test). */
+int t_serial_scenarios(const char *test, int *framing, const t_case_t *cases, int n);
 void t_sleep_ms(int ms);
 void t_sleep_us(long us);
 int64_t t_now_us(void);

@@ -538,3 +538,29 @@ mbfb_diag_t t_diag(int dev)
     CHECK_EQ(mbfb_dev_diag(dev, &d), 0);
     return d;
 }
+
+int t_read_reply_bytes(int framing, int nregs)
+{
+    int frame = 3 + 2 * nregs; /* slave, function, byte count, data */
+    return framing == MBFB_FRAMING_ASCII ? 1 + 2 * (frame + 1) + 2 : frame + 2;
+}
+
+int t_serial_scenarios(const char *test, int *framing, const t_case_t *cases, int n)
+{
+    static const struct { int framing; const char *name; } framings[] = {
+        {MBFB_FRAMING_RTU, "rtu"},
+        {MBFB_FRAMING_ASCII, "ascii"},
+        {MBFB_FRAMING_RTU_NOCRC, "rtu-nocrc"},
+    };
+    static char name[96];
+
+    for (size_t f = 0; f < sizeof framings / sizeof framings[0]; f++) {
+        *framing = framings[f].framing;
+        for (int c = 0; c < n; c++) {
+            snprintf(name, sizeof name, "%s: %s", framings[f].name, cases[c].name);
+            t_scenario = name;
+            cases[c].fn();
+        }
+    }
+    return t_done(test);
+}

@@ -229,12 +229,6 @@ static void bad_echo_and_count(void)
     teardown();
 }
 
-/* Bytes of one reply to register `reg` read as 1 register, in this framing. */
-static int reply_bytes(void)
-{
-    return framing == MBFB_FRAMING_ASCII ? 1 + 2 * 6 + 2 : 7;
-}
-
 /* A reply that comes after the timeout is never the answer to the next request:
  * (a) it arrives while the next request waits for a whole timeout of silence (owed
  *     after a failed transaction): read, discarded, counted;
@@ -256,7 +250,7 @@ static void late_reply(void)
     CHECK_EQ(v[0], 0x1001); /* register 1, not the late 0x1000 of register 0 */
     CHECK_EQ(peer_count(&P), 2);
     CHECK(peer_raw(&P, 1, raw) > 0);
-    CHECK_EQ(t_diag(dev).stray_bytes, reply_bytes());
+    CHECK_EQ(t_diag(dev).stray_bytes, t_read_reply_bytes(framing, 1));
     teardown();
 
     late_ms = T_MS * 3; /* (b) */
@@ -266,7 +260,7 @@ static void late_reply(void)
     CHECK_EQ(t_diag(dev).stray_bytes, 0); /* nobody has read it yet */
     CHECK_EQ(t_run(dev, 3, 1, 1, NULL, v, 1), 1);
     CHECK_EQ(v[0], 0x1001);
-    CHECK_EQ(t_diag(dev).stray_bytes, reply_bytes());
+    CHECK_EQ(t_diag(dev).stray_bytes, t_read_reply_bytes(framing, 1));
     teardown();
 
     late_ms = T_MS * 3 / 2; /* (c) */
@@ -279,32 +273,17 @@ static void late_reply(void)
     CHECK_EQ(t_diag(dev).retries, 1);
     CHECK_EQ(t_run(dev, 3, 6, 1, NULL, v, 1), 1);
     CHECK_EQ(v[0], 0x1006);
-    CHECK_EQ(t_diag(dev).stray_bytes, reply_bytes()); /* the retry's own reply */
+    CHECK_EQ(t_diag(dev).stray_bytes, t_read_reply_bytes(framing, 1)); /* the retry's own reply */
     teardown();
 }
 
 int main(void)
 {
-    static const struct { int framing; const char *name; } framings[] = {
-        {MBFB_FRAMING_RTU, "rtu"},
-        {MBFB_FRAMING_ASCII, "ascii"},
-        {MBFB_FRAMING_RTU_NOCRC, "rtu-nocrc"},
-    };
-    static const struct { void (*fn)(void); const char *name; } scenarios[] = {
+    static const t_case_t cases[] = {
         {no_reply, "no reply"},         {bad_check, "bad CRC/LRC"},
         {wrong_slave_reply, "wrong slave"}, {exception_reply, "exception"},
         {truncated, "truncated"},       {noise, "noise"},
         {bad_echo_and_count, "echo/count"}, {late_reply, "late reply"},
     };
-    char name[96];
-
-    for (size_t f = 0; f < sizeof framings / sizeof framings[0]; f++) {
-        framing = framings[f].framing;
-        for (size_t s = 0; s < sizeof scenarios / sizeof scenarios[0]; s++) {
-            snprintf(name, sizeof name, "%s: %s", framings[f].name, scenarios[s].name);
-            t_scenario = name;
-            scenarios[s].fn();
-        }
-    }
-    return t_done("test_failures");
+    return t_serial_scenarios("test_failures", &framing, cases, (int)(sizeof cases / sizeof cases[0]));
 }

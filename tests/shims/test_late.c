@@ -29,12 +29,6 @@ static peer_t P;
 static int framing;
 static int late_ms, pace_us;
 
-/* Bytes of a one-register read reply in this framing. */
-static int reply_bytes(void)
-{
-    return framing == MBFB_FRAMING_ASCII ? 1 + 2 * 6 + 2 : 7;
-}
-
 static int setup(peer_fn fn, int retries)
 {
     return t_serial_dev(&P, fn, framing, BAUD, T_MS, retries);
@@ -94,45 +88,44 @@ static void check_clean(int dev, int good, int timeouts, int stray)
     CHECK_EQ(peer_collisions(&P), 0);
 }
 
-/* The first request times out; its reply starts 700 ms after it was sent, while the
- * next request waits for a timeout of silence (from 400..533 to 800..933 ms), and
- * trickles in over 35..75 ms. */
-static void late_in_wait(void)
+/* The first request times out and is answered late_ms after it was sent, one byte
+ * every pace_us; the next request, posted at once or (trickling) once the late reply has
+ * begun, must wait until it is over and then get its own answer. */
+static void late_case(int late, int pace, int trickling)
 {
     uint16_t v[1] = {0};
-    int dev, h;
+    int dev, h, bytes = t_read_reply_bytes(framing, 1);
 
-    late_ms = T_MS * 7 / 4;
-    pace_us = 5000;
+    late_ms = late;
+    pace_us = pace;
     dev = setup(late_first, 0);
     CHECK_EQ(t_run(dev, 3, 0, 1, NULL, v, 1), -MBFB_E_TIMEOUT);
-    h = mbfb_post(dev, 3, 1, 1, NULL);
-    CHECK_EQ(peer_paced_sent(&P), 0); /* posted before the late reply began */
+    if (trickling) {
+        h = post_when(dev, 1, late_started);
+        CHECK(peer_paced_sent(&P) < bytes); /* posted while it was coming in */
+    } else {
+        h = mbfb_post(dev, 3, 1, 1, NULL);
+        CHECK_EQ(peer_paced_sent(&P), 0);  /* posted before it began */
+    }
     CHECK_EQ(take(h, v), 1);
     CHECK_EQ(v[0], 0x1001);
     CHECK_EQ(peer_count(&P), 2);
-    check_clean(dev, 1, 1, reply_bytes());
+    check_clean(dev, 1, 1, bytes);
     teardown();
 }
 
-/* The late reply is still trickling in (30 ms per byte) when the next request is
- * posted: the request waits until it is over and the line has been silent. */
+/* The reply starts 700 ms after the request, while the next request waits for a
+ * timeout of silence (from 400..533 to 800..933 ms), and trickles in over 35..75 ms. */
+static void late_in_wait(void)
+{
+    late_case(T_MS * 7 / 4, 5000, 0);
+}
+
+/* The reply (1 s late) still trickles in, 30 ms per byte, when the next request is
+ * posted. */
 static void late_trickling(void)
 {
-    uint16_t v[1] = {0};
-    int dev, h;
-
-    late_ms = T_MS * 5 / 2;
-    pace_us = 30000;
-    dev = setup(late_first, 0);
-    CHECK_EQ(t_run(dev, 3, 0, 1, NULL, v, 1), -MBFB_E_TIMEOUT);
-    h = post_when(dev, 1, late_started);
-    CHECK(peer_paced_sent(&P) < reply_bytes()); /* posted while it was coming in */
-    CHECK_EQ(take(h, v), 1);
-    CHECK_EQ(v[0], 0x1001);
-    CHECK_EQ(peer_count(&P), 2);
-    check_clean(dev, 1, 1, reply_bytes());
-    teardown();
+    late_case(T_MS * 5 / 2, 30000, 1);
 }
 
 /* A valid-looking answer to the same question with a wrong value, in this framing. */
@@ -203,26 +196,11 @@ static void babble_forever(void)
 
 int main(void)
 {
-    static const struct { int framing; const char *name; } framings[] = {
-        {MBFB_FRAMING_RTU, "rtu"},
-        {MBFB_FRAMING_ASCII, "ascii"},
-        {MBFB_FRAMING_RTU_NOCRC, "rtu-nocrc"},
-    };
-    static const struct { void (*fn)(void); const char *name; } scenarios[] = {
+    static const t_case_t cases[] = {
         {late_in_wait, "late reply during the wait"},
         {late_trickling, "late reply still trickling"},
         {babble_short, "another talker"},
         {babble_forever, "babbling line"},
     };
-    char name[96];
-
-    for (size_t f = 0; f < sizeof framings / sizeof framings[0]; f++) {
-        framing = framings[f].framing;
-        for (size_t s = 0; s < sizeof scenarios / sizeof scenarios[0]; s++) {
-            snprintf(name, sizeof name, "%s: %s", framings[f].name, scenarios[s].name);
-            t_scenario = name;
-            scenarios[s].fn();
-        }
-    }
-    return t_done("test_late");
+    return t_serial_scenarios("test_late", &framing, cases, (int)(sizeof cases / sizeof cases[0]));
 }
