@@ -57,6 +57,7 @@ typedef struct peer_reply {
     int len;                  /* bytes to write; 0 = stay silent */
     int delay_ms;             /* wait this long before writing     */
     int pace_us;              /* > 0: one byte, then this pause (a slow line) */
+    int hold;                 /* wait for peer_release() (at most 10 s) before writing */
 } peer_reply_t;
 
 struct peer;
@@ -87,6 +88,7 @@ typedef struct peer {
     int collisions;           /* __atomic: request bytes came in while a paced reply
                                  was still going out (a collision on RS-485)       */
     int paced_sent;           /* __atomic: bytes of the current paced reply sent   */
+    int released;             /* __atomic: set by peer_release, taken by a held reply */
     /* babbler: a second talker on the line (noise, another master, a broken unit) */
     pthread_t babbler;
     int babbling, babble_stop;                 /* babble_stop: __atomic            */
@@ -123,6 +125,8 @@ long peer_babble_stop(peer_t *p);
 long peer_babbled(peer_t *p);
 int peer_collisions(peer_t *p);
 int peer_paced_sent(peer_t *p);
+/** Let a held reply (peer_reply_t.hold) go out. */
+void peer_release(peer_t *p);
 /** A well-behaved device from the register bank. */
 void peer_answer(peer_t *p, int n, const uint8_t *frame, int flen, peer_reply_t *r);
 

@@ -239,6 +239,9 @@ static void *peer_main(void *arg)
             p->fn(p, n, frame, flen, &r);
         if (r.delay_ms)
             t_sleep_ms(r.delay_ms);
+        for (int i = 0; r.hold && i < 10000 && !__atomic_exchange_n(&p->released, 0,
+                                                                    __ATOMIC_ACQ_REL); i++)
+            t_sleep_ms(1);
         peer_write(p, &r);
     }
     return NULL;
@@ -320,6 +323,11 @@ int peer_collisions(peer_t *p)
 int peer_paced_sent(peer_t *p)
 {
     return __atomic_load_n(&p->paced_sent, __ATOMIC_ACQUIRE);
+}
+
+void peer_release(peer_t *p)
+{
+    __atomic_store_n(&p->released, 1, __ATOMIC_RELEASE);
 }
 
 void peer_stop(peer_t *p)

@@ -12,7 +12,7 @@
  *                    out anyway, garbage is never taken as an answer, the bus goes on
  * In each: the next request gets its own answer, nothing wrong is accepted, the stray
  * bytes are counted exactly, and the peer never hears a request while it is talking.
- * 600 baud: gap = 44 bit times = 73 ms, so the 1..30 ms pauses of the talkers here are
+ * 600 baud: gap = 44 bit times = 73 ms, so the 1..10 ms pauses of the talkers here are
  * far from silence even on a loaded machine.
  */
 #include <string.h>
@@ -25,9 +25,11 @@
 #define T_MS 400
 #define BAUD 600
 
+#define NREG 10   /* registers per read: replies of 25 (RTU) / 51 (ASCII) bytes */
+
 static peer_t P;
 static int framing;
-static int late_ms, pace_us;
+static int late_ms, pace_us, hold;
 
 static int setup(peer_fn fn, int retries)
 {
@@ -40,24 +42,26 @@ static void teardown(void)
     peer_stop(&P);
 }
 
-/* Request 0 is answered late_ms late, one byte every pace_us; the rest at once. */
+/* Request 0 is answered late_ms late (or when released), one byte every pace_us; the
+ * rest at once. */
 static void late_first(peer_t *p, int n, const uint8_t *f, int len, peer_reply_t *r)
 {
     peer_answer(p, n, f, len, r);
     if (n == 0) {
         r->delay_ms = late_ms;
         r->pace_us = pace_us;
+        r->hold = hold;
     }
 }
 
-/* Post a read of register `reg` once `ready` holds (polled every millisecond). */
-static int post_when(int dev, int reg, int (*ready)(void))
+/* Post a read of `count` registers from `reg` once `ready` holds (polled every ms). */
+static int post_when(int dev, int reg, int count, int (*ready)(void))
 {
     int64_t end = t_now_us() + 10000000;
     while (!ready() && t_now_us() < end)
         t_sleep_ms(1);
     CHECK(ready());
-    return mbfb_post(dev, 3, reg, 1, NULL);
+    return mbfb_post(dev, 3, reg, count, NULL);
 }
 
 static int take(int h, uint16_t *v)
@@ -88,44 +92,54 @@ static void check_clean(int dev, int good, int timeouts, int stray)
     CHECK_EQ(peer_collisions(&P), 0);
 }
 
-/* The first request times out and is answered late_ms after it was sent, one byte
- * every pace_us; the next request, posted at once or (trickling) once the late reply has
- * begun, must wait until it is over and then get its own answer. */
-static void late_case(int late, int pace, int trickling)
+/* The first request (registers 0..9) times out; its late reply trickles in, one byte
+ * every pace_us, either released by the test once the next request (registers 10..19,
+ * same length: a late reply taken for it would pass every check) waits for silence, or
+ * (trickling) late_ms after it was sent, the next request being posted once it has begun.
+ * The next request must wait until it is over and then get its own answer. */
+static void late_case(int trickling)
 {
-    uint16_t v[1] = {0};
-    int dev, h, bytes = t_read_reply_bytes(framing, 1);
+    uint16_t v[NREG] = {0};
+    int dev, h, bytes = t_read_reply_bytes(framing, NREG);
 
-    late_ms = late;
-    pace_us = pace;
     dev = setup(late_first, 0);
-    CHECK_EQ(t_run(dev, 3, 0, 1, NULL, v, 1), -MBFB_E_TIMEOUT);
+    CHECK_EQ(t_run(dev, 3, 0, NREG, NULL, v, NREG), -MBFB_E_TIMEOUT);
     if (trickling) {
-        h = post_when(dev, 1, late_started);
+        h = post_when(dev, 10, NREG, late_started);
         CHECK(peer_paced_sent(&P) < bytes); /* posted while it was coming in */
     } else {
-        h = mbfb_post(dev, 3, 1, 1, NULL);
-        CHECK_EQ(peer_paced_sent(&P), 0);  /* posted before it began */
+        h = mbfb_post(dev, 3, 10, NREG, NULL);
+        t_sleep_ms(T_MS / 4);             /* inside the timeout of silence owed */
+        CHECK_EQ(peer_paced_sent(&P), 0);
+        peer_release(&P);
     }
-    CHECK_EQ(take(h, v), 1);
-    CHECK_EQ(v[0], 0x1001);
+    CHECK(t_wait(h) >= MBFB_REQ_DONE);
+    CHECK_EQ(mbfb_take(h, v, NREG), NREG);
+    for (int i = 0; i < NREG; i++)
+        CHECK_EQ(v[i], 0x1000 + 10 + i);
     CHECK_EQ(peer_count(&P), 2);
     check_clean(dev, 1, 1, bytes);
     teardown();
 }
 
-/* The reply starts 700 ms after the request, while the next request waits for a
- * timeout of silence (from 400..533 to 800..933 ms), and trickles in over 35..75 ms. */
+/* The late reply is released 100 ms into the timeout of silence the next request owes
+ * after the failed one, and takes 125 (RTU) / 255 ms (ASCII) at 5 ms per byte. */
 static void late_in_wait(void)
 {
-    late_case(T_MS * 7 / 4, 5000, 0);
+    late_ms = 0;
+    pace_us = 5000;
+    hold = 1;
+    late_case(0);
 }
 
-/* The reply (1 s late) still trickles in, 30 ms per byte, when the next request is
- * posted. */
+/* The late reply comes 1 s after the request, 10 ms per byte (250 / 510 ms), and the
+ * next request is posted while it trickles in. */
 static void late_trickling(void)
 {
-    late_case(T_MS * 5 / 2, 30000, 1);
+    late_ms = T_MS * 5 / 2;
+    pace_us = 10000;
+    hold = 0;
+    late_case(1);
 }
 
 /* A valid-looking answer to the same question with a wrong value, in this framing. */
@@ -151,7 +165,7 @@ static void babble_short(void)
     CHECK_EQ(t_run(dev, 3, 0, 1, NULL, v, 1), 1); /* the port is open and quiet */
     len = wrong_answer(pat);
     CHECK_EQ(peer_babble_start(&P, pat, len, 2000, 6L * len), 0);
-    h = post_when(dev, 1, babble_started);
+    h = post_when(dev, 1, 1, babble_started);
     CHECK_EQ(take(h, v), 1);
     CHECK_EQ(v[0], 0x1001);
     talked = peer_babble_stop(&P);
@@ -176,7 +190,7 @@ static void babble_forever(void)
     CHECK_EQ(t_run(dev, 3, 0, 1, NULL, v, 1), 1);
     peer_set_dead(&P, 1, 1);
     CHECK_EQ(peer_babble_start(&P, &ff, 1, 1000, 0), 0);
-    h = post_when(dev, 2, babble_started);
+    h = post_when(dev, 2, 1, babble_started);
     v[0] = 0;
     rc = take(h, v);
     CHECK(rc == -MBFB_E_BADREPLY || rc == -MBFB_E_CRC || rc == -MBFB_E_TIMEOUT);
