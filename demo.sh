@@ -38,31 +38,32 @@ have_matiec() {
         [ -x "$OPENPLC_HOME/webserver/iec2c" ]
 }
 
-if [ "$mode" = auto ]; then
-    if have_openplc; then mode=openplc
-    elif have_matiec; then mode=runner
-    else
-        cat >&2 <<MSG
-demo.sh: no PLC toolchain found. Install one of:
+need() {  # need openplc|matiec|both: say what to install, and stop
+    echo "demo.sh: no PLC toolchain found for this demo. Install:" >&2
+    [ "$1" = matiec ] || cat >&2 <<MSG
   - OpenPLC v3 (runs the example in OpenPLC's runtime): clone thiagoralves/OpenPLC_v3, run its
     ./install.sh linux, and set OPENPLC_HOME to it (now: $OPENPLC_HOME). README, Prerequisites.
+MSG
+    [ "$1" = openplc ] || cat >&2 <<MSG
   - matiec, the IEC 61131-3 compiler (runs the example in this project's own runner): build it
     and set MATIEC_HOME to the directory holding iec2c and lib/ (or put iec2c on PATH).
 MSG
-        exit 1
+    exit 1
+}
+if [ "$mode" = auto ]; then
+    if have_openplc; then mode=openplc
+    elif have_matiec; then mode=runner
+    else need both
     fi
 fi
-
 if [ "$mode" = openplc ]; then
-    if ! have_openplc; then
-        echo "demo.sh: OpenPLC v3 not found at $OPENPLC_HOME (set OPENPLC_HOME; README, Prerequisites)." >&2
-        exit 1
-    fi
+    have_openplc || need openplc
     exec tests/e2e/netns.sh .venv/bin/python examples/heat_treat_st/live.py --backend openplc \
         ${args[@]+"${args[@]}"}
 fi
 
 # The runner: build the example's program with the project's CMake (tests/fb/CMakeLists.txt).
+have_matiec || need matiec
 generator=()
 [ -f "$build/CMakeCache.txt" ] || generator=(-G Ninja)
 echo "building the runner in $build (cmake) ..."

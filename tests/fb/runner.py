@@ -23,7 +23,8 @@ sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(
 from oplc import _die_with_parent  # noqa: E402
 
 # OpenPLC's Modbus map (core/modbus.cpp): holding registers 0..1023 = %QW, 1024..2047 = %MW,
-# coil n = %QX(n/8).(n%8). A register OpenPLC has not bound to a variable reads 0.
+# coil n = %QX(n/8).(n%8). A register OpenPLC has not bound to a variable reads 0 (here too);
+# a write to one is refused here (RunnerError) where OpenPLC drops it silently.
 MW_BASE = 1024
 
 
@@ -100,9 +101,9 @@ class Runner:
         return [bool(qx.get(f"{i // 8}.{i % 8}", False)) for i in range(count)]
 
     def write(self, addr, value):
-        if not MW_BASE <= addr < 2 * MW_BASE:
-            raise RunnerError(f"holding register {addr}: only %MW (1024..2047) is writable here")
-        self.command(f"set %MW{addr - MW_BASE} {value}")
+        if not 0 <= addr < 2 * MW_BASE:
+            raise RunnerError(f"holding register {addr}: only %QW (0..1023) and %MW (1024..2047)")
+        self.command(f"set %MW{addr - MW_BASE} {value}" if addr >= MW_BASE else f"set %QW{addr} {value}")
 
     def close(self):
         if self._sock is not None:
