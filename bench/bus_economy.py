@@ -180,12 +180,16 @@ def main() -> int:
             vdir = os.path.join(work, variant)
             os.makedirs(vdir)
             sources = st_sources(commit, vdir)
+            # MB_LINE.Parity: an enumeration in older st_src, a string since
+            parity_none = ("MB_PARITY_NONE" if any("MB_PARITY_NONE" in open(f, encoding="utf-8").read()
+                                                   for f in sources) else "'N'")
             for period, _ in loads:
                 program = (template.replace("@PERIOD@", f"T#{period}ms")
                            .replace("@SETTINGS@", f"T#{args.settings_ms}ms")
                            .replace("@N@", str(args.n)).replace("@SCAN_MS@", str(args.scan_ms))
                            .replace("@MV_EXTRA@", "" if commit else
-                                    f", SettingsPeriod := T#{args.settings_ms}ms"))
+                                    f", SettingsPeriod := T#{args.settings_ms}ms")
+                           .replace("@PARITY_NONE@", parity_none))
                 bdir = os.path.join(vdir, f"p{period}")
                 os.makedirs(bdir)
                 exe = build(args.build, bdir, sources, program)

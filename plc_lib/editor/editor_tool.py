@@ -29,7 +29,9 @@ def _stub_gui():
     sys.modules["graphics.GraphicCommons"] = types.ModuleType("graphics.GraphicCommons")
 
 
-def _load_editor(editor, palette=None):
+def load_editor(editor, palette=None):
+    """Import the Editor's plcopen.structures from checkout `editor`, with the palette library
+    `palette` registered as plc_lib/README.md asks; returns that module."""
     editor = os.path.abspath(editor)
     if not os.path.isfile(os.path.join(editor, "PLCGenerator.py")):
         raise SystemExit(f"{editor}: not an OpenPLC Editor checkout (no PLCGenerator.py)")
@@ -43,7 +45,7 @@ def _load_editor(editor, palette=None):
 
 
 def cmd_palette(args):
-    s = _load_editor(args.editor, args.palette)
+    s = load_editor(args.editor, args.palette)
     cat = [c for c in s.StdBlckLst if c["name"] == "Modbus instruments (mbfb)"]
     if not cat or not cat[0]["list"]:
         raise SystemExit("the Editor's loader found no block in the palette library")
@@ -51,21 +53,27 @@ def cmd_palette(args):
         print(f"{b['name']} ({b['type']}): in {[i[:2] for i in b['inputs']]} out {[o[:2] for o in b['outputs']]}")
 
 
-def cmd_st(args):
-    _load_editor(args.editor, args.palette)
+def generate_st(plc_xml, out_st, resave=False):
+    """With the Editor loaded (load_editor): open plc_xml with its PLCControler, save it back
+    with its serializer if resave, and write the ST its PLCGenerator produces to out_st."""
     import PLCControler
     c = PLCControler.PLCControler()
-    err = c.OpenXMLFile(os.path.abspath(args.plc_xml))
+    err = c.OpenXMLFile(os.path.abspath(plc_xml))
     if err:
-        raise SystemExit(f"the Editor cannot open {args.plc_xml}: {err}")
-    if args.resave:
-        c.SaveXMLFile(os.path.abspath(args.plc_xml))
-    _, errors, warnings = c.GenerateProgram(os.path.abspath(args.out_st))
+        raise SystemExit(f"the Editor cannot open {plc_xml}: {err}")
+    if resave:
+        c.SaveXMLFile(os.path.abspath(plc_xml))
+    _, errors, warnings = c.GenerateProgram(os.path.abspath(out_st))
     for w in warnings:
         print("warning:", w)
     if errors:
         raise SystemExit(f"the Editor's generator failed: {errors}")
-    print(f"wrote {args.out_st}")
+    print(f"wrote {out_st}")
+
+
+def cmd_st(args):
+    load_editor(args.editor, args.palette)
+    generate_st(args.plc_xml, args.out_st, args.resave)
 
 
 def main():

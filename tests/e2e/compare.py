@@ -25,7 +25,8 @@ END_CONFIGURATION
 """
 MBFB = """PROGRAM cmp
   VAR
-    Z : TempCtrl_MVD94; L : MB_LINE; Sent : INT; W : BOOL;
+    Z : TempCtrl_MVD94; Sent : INT; W : BOOL;
+    L : MB_LINE := (Baud := 9600, DataBits := 8, Parity := 'N', StopBits := 2);
   END_VAR
   VAR
     OPV AT %QW0 : INT;
@@ -33,7 +34,6 @@ MBFB = """PROGRAM cmp
     OST AT %QW2 : WORD;
     Req AT %MW0 : INT;
   END_VAR
-  L.Baud := 9600; L.Parity := MB_PARITY_NONE; L.DataBits := 8; L.StopBits := 2;
   W := (Req <> 0) AND (Req <> Sent);
   Z(Enable := TRUE, Port := 'BUS', Line := L, SlaveId := 2, Period := T#500ms,
     WriteSV := W, SVSet := INT_TO_REAL(Req) / 10.0);
