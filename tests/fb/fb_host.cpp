@@ -35,9 +35,15 @@
 #include <unistd.h>
 
 TIME __CURRENT_TIME;                     // OpenPLC: core/glueVars.cpp
+#ifdef MBFB_PROGRAM_IN_C                 // the program compiled as C (matiec's own headers)
+extern "C" {
+#endif
 extern unsigned long long common_ticktime__;
 void config_init__(void);
 void config_run__(unsigned long tick);
+#ifdef MBFB_PROGRAM_IN_C
+}
+#endif
 
 // OpenPLC's TCP blocks (core/lib/communication.h) are compiled into every program; their C
 // lives in OpenPLC's client.cpp, which the test programs do not use: fail if ever called.

@@ -3,6 +3,9 @@
 #ifndef FBTEST_H
 #define FBTEST_H
 #include <stdint.h>
+#ifdef __cplusplus
+extern "C" {  /* the program may be C (matiec's own headers) or C++ (OpenPLC's) */
+#endif
 
 /** Record a failed check: prints "FAIL scan N: msg"; the host exits 1 after this scan. */
 void fbt_fail(const uint8_t *msg, int len);
@@ -23,4 +26,7 @@ int fbt_getenv(const char *name, uint8_t *buf, int max);
  *  e.g. '"hex": "01 06' counts FC06 frames to slave 1 in a log). */
 int fbt_sim(const uint8_t *req, int len, uint8_t *buf, int max, int *ok, long *raw, long *frames,
             const uint8_t *match, int match_len, long *matches);
+#ifdef __cplusplus
+}
+#endif
 #endif

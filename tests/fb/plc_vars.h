@@ -10,6 +10,9 @@
 #ifndef PLC_VARS_H
 #define PLC_VARS_H
 #include <stddef.h>
+#ifdef __cplusplus
+extern "C" {  /* the table is generated in the program's language, C or C++ */
+#endif
 
 typedef enum {
     PLC_BOOL, PLC_SINT, PLC_INT, PLC_DINT, PLC_LINT, PLC_USINT, PLC_UINT, PLC_UDINT, PLC_ULINT,
@@ -40,4 +43,7 @@ int plc_var_parse(const plc_var_t *v, const char *text);
  *  "QX": {"0.0": true, ...}, ...}, to path atomically (a temp file renamed over it). */
 int plc_snapshot_write(const char *path, unsigned long scan);
 
+#ifdef __cplusplus
+}
+#endif
 #endif
