@@ -152,7 +152,7 @@ def test_ld_is_a_ladder_with_our_blocks_wired(ld, palette):
     for conn in body.iter("{%s}connection" % NS["p"]):
         assert conn.get("refLocalId") in ids, f"dangling connection to {conn.get('refLocalId')}"
     ours = [b for b in body.findall("p:block", NS) if b.get("typeName") in palette]
-    assert {"TempCtrl_MVD94", "Counter_MTS9"} <= {b.get("typeName") for b in ours}
+    assert {"FDC_Controller", "TempCtrl_MVD94", "Counter_MTS9"} <= {b.get("typeName") for b in ours}
     for b in ours:
         pins = palette[b.get("typeName")]
         for d, tag in (("in", "inputVariables"), ("out", "outputVariables")):
@@ -187,6 +187,10 @@ def test_st_is_the_ld_compiled(ld):
         xml_vars[v.get("name")] = (v.get("address"), type_name(v), init.get("value") if init is not None else None)
     assert {k: v for k, v in vars_st.items() if not k.startswith("_TMP_")} == xml_vars
     assert vars_st["BusPort"][2] == f"'{oplc.EXAMPLE_BUS}'"
+    # the line, with the FDC-100's parity, comes from the declaration alone (no code sets it)
+    assert vars_st["BusLine"][1:] == ("MB_LINE", "(Baud := 9600, DataBits := 8, Framing := 'RTU', "
+                                                 "Parity := 'N', StopBits := 2)")
+    assert not re.search(r"\bBusLine\.", st)
     for b in body.findall("p:block", NS):
         name = b.get("instanceName") or b.get("typeName")
         assert re.search(rf"\b{name}\(", st), f"block {name} is not called in the ST"

@@ -15,9 +15,12 @@ from simctl import Simulator  # noqa: E402
 
 EXAMPLE = os.path.join(oplc.ROOT, "examples", "heat_treat_ld", "heat_treat_ld.st")
 PORT = 5502
-Z2PV, Z2SV, Z2ERR, COUNT, COUNTERR, BEAT = 3, 4, 5, 6, 7, 8
-Z2SPREQ = 1025
-C_Z2VALID, C_Z2QUIET, C_PARTSVALID, C_PARTSQUIET, C_ANY, C_RESET = 3, 5, 6, 7, 8, 9
+Z1PV, Z1SV, Z1ERR, Z2PV, Z2SV, Z2ERR, COUNT, COUNTERR, BEAT = range(9)
+Z1SPREQ, Z2SPREQ = 1024, 1025
+(C_Z1VALID, C_Z1BAND, C_Z1QUIET, C_Z2VALID, C_Z2BAND, C_Z2QUIET, C_PARTSVALID, C_PARTSQUIET, C_ANY,
+ C_RESET) = range(10)
+VALID = (C_Z1VALID, C_Z2VALID, C_PARTSVALID)
+ALARMS = (C_Z1BAND, C_Z1QUIET, C_Z2BAND, C_Z2QUIET, C_PARTSQUIET, C_ANY)
 
 
 @pytest.fixture(scope="module")
@@ -37,28 +40,75 @@ def plant(tmp_path_factory, dist):
             print(plc.runtime_log()[-3000:])
 
 
+def between(client, sim, reg, addr, sim_reg):
+    """The PLC's value x10 lies between two simulator readings (engineering units) around it."""
+    lo = sim.ctl("get", addr=addr, reg=sim_reg)["eng"]
+    mid = s16(client.hr(reg)[0])
+    hi = sim.ctl("get", addr=addr, reg=sim_reg)["eng"]
+    assert 10 * min(lo, hi) - 50 <= mid <= 10 * max(lo, hi) + 50, (lo, mid, hi)
+
+
 def test_ld_program_publishes_the_instruments(plant):
     sim, client = plant
-    wait(lambda: all(client.coils(10)[i] for i in (C_Z2VALID, C_PARTSVALID)), 30, "both devices valid")
+    wait(lambda: all(client.coils(10)[i] for i in VALID), 30, "all three devices valid")
     b0 = client.hr(BEAT)[0]
     wait(lambda: client.hr(BEAT)[0] != b0, 5, "the scan heartbeat to move")
+    # the FDC-100 shares the 8N2 line only because BusLine's declaration set Parity := 'N'
+    assert s16(client.hr(Z1SV)[0]) == round(10 * sim.ctl("get", addr=1, reg="SP1")["eng"])
     assert client.hr(Z2SV)[0] == sim.ctl("get", addr=2, reg="SV")["raw"]  # DP=1: raw = x10
-    lo = sim.ctl("get", addr=2, reg="PV")["raw"]
-    mid = s16(client.hr(Z2PV)[0])
-    hi = sim.ctl("get", addr=2, reg="PV")["raw"]
-    assert min(lo, hi) - 50 <= mid <= max(lo, hi) + 50, (lo, mid, hi)
+    between(client, sim, Z1PV, 1, "PV")
+    between(client, sim, Z2PV, 2, "PV")
     assert 0 < client.hr(COUNT)[0] <= sim.ctl("get", addr=3, reg="VALUE")["raw"] & 0xFFFF
-    assert client.hr(Z2ERR)[0] == client.hr(COUNTERR)[0] == 0
-    assert not any(client.coils(10)[i] for i in (C_Z2QUIET, C_PARTSQUIET, C_ANY))
+    assert client.hr(Z1ERR)[0] == client.hr(Z2ERR)[0] == client.hr(COUNTERR)[0] == 0
+    assert not any(client.coils(10)[i] for i in ALARMS)
 
 
-def test_ld_set_point_request_reaches_the_mvd94(plant):
+@pytest.mark.parametrize("valid, req, sv, addr, reg", [
+    (C_Z1VALID, Z1SPREQ, Z1SV, 1, "SP1"), (C_Z2VALID, Z2SPREQ, Z2SV, 2, "SV")])
+def test_ld_set_point_request_reaches_the_controller(plant, valid, req, sv, addr, reg):
     sim, client = plant
-    wait(lambda: client.coils(10)[C_Z2VALID], 30, "zone 2 valid")
-    new = 1300 if sim.ctl("get", addr=2, reg="SV")["raw"] != 1300 else 1400
-    client.write(Z2SPREQ, new)
-    wait(lambda: sim.ctl("get", addr=2, reg="SV")["raw"] == new, 10, "SV to reach the MV-D94")
-    wait(lambda: client.hr(Z2SV)[0] == new, 10, "the PLC to read back the new SV")
+    wait(lambda: client.coils(10)[valid], 30, "the zone valid")
+    new = 1300 if round(10 * sim.ctl("get", addr=addr, reg=reg)["eng"]) != 1300 else 1400
+    client.write(req, new)
+    wait(lambda: round(10 * sim.ctl("get", addr=addr, reg=reg)["eng"]) == new, 10,
+         "the set point to reach the controller")
+    wait(lambda: s16(client.hr(sv)[0]) == new, 10, "the PLC to read back the new SV")
+
+
+def test_ld_zone1_band_alarm_when_pv_is_held_off_the_set_point(plant):
+    sim, client = plant
+    wait(lambda: client.coils(10)[C_Z1VALID] and not client.coils(10)[C_Z1BAND], 30, "zone 1 valid, in band")
+    sv = sim.ctl("get", addr=1, reg="SP1")["eng"]
+    sim.ctl("plant", addr=1, temp=sv - 30.0, hold=True)
+    try:
+        wait(lambda: abs(s16(client.hr(Z1PV)[0]) - round(10 * (sv - 30.0))) <= 1, 10,
+             "the PLC to show the held PV")
+        assert not client.coils(10)[C_Z1BAND], "the band alarm waits 5 s"
+        wait(lambda: client.coils(10)[C_Z1BAND] and client.coils(10)[C_ANY], 20,
+             "the PLC to report zone 1 out of band")
+        assert not client.coils(10)[C_Z2BAND] and client.coils(10)[C_Z1VALID]
+        sim.ctl("plant", addr=1, temp=sv, hold=True)
+        wait(lambda: not client.coils(10)[C_Z1BAND], 10, "the band alarm to clear at the set point")
+    finally:
+        sim.ctl("plant", addr=1, hold=False)
+
+
+@pytest.mark.parametrize("addr, valid, quiet, err, other", [
+    (1, C_Z1VALID, C_Z1QUIET, Z1ERR, C_Z2VALID), (3, C_PARTSVALID, C_PARTSQUIET, COUNTERR, C_Z2VALID)])
+def test_ld_quiet_alarm_when_a_device_goes_offline(plant, addr, valid, quiet, err, other):
+    sim, client = plant
+    wait(lambda: client.coils(10)[valid], 30, "the device valid")
+    sim.ctl("offline", addr=addr, on=True)
+    try:
+        wait(lambda: client.coils(10)[quiet] and client.coils(10)[C_ANY], 30,
+             "the PLC to report the device quiet")
+        assert not client.coils(10)[valid]
+        assert client.hr(err)[0] != 0
+        assert client.coils(10)[other], "zone 2 on the same bus keeps working"
+    finally:
+        sim.ctl("offline", addr=addr, on=False)
+    wait(lambda: client.coils(10)[valid] and not client.coils(10)[quiet], 60, "the device to recover")
+    wait(lambda: client.hr(err)[0] == 0, 10, "ErrorID to clear")
 
 
 def test_ld_reset_coil_resets_the_count_once(plant):
@@ -71,18 +121,3 @@ def test_ld_reset_coil_resets_the_count_once(plant):
     assert sim.ctl("get", addr=3, reg="VALUE")["raw"] < 50000, "the MT-S9 was not reset"
     wait(lambda: client.hr(COUNT)[0] < 50000, 10, "the PLC to show the reset count")
     assert client.hr(COUNTERR)[0] == 0
-
-
-def test_ld_quiet_alarm_when_the_counter_goes_offline(plant):
-    sim, client = plant
-    wait(lambda: client.coils(10)[C_PARTSVALID], 30, "counter valid")
-    sim.ctl("offline", addr=3, on=True)
-    try:
-        wait(lambda: client.coils(10)[C_PARTSQUIET] and client.coils(10)[C_ANY], 30,
-             "the PLC to report the counter quiet")
-        assert client.hr(COUNTERR)[0] != 0
-        assert client.coils(10)[C_Z2VALID], "zone 2 on the same bus keeps working"
-    finally:
-        sim.ctl("offline", addr=3, on=False)
-    wait(lambda: client.coils(10)[C_PARTSVALID] and not client.coils(10)[C_PARTSQUIET], 60,
-         "the counter to recover")
