@@ -5,6 +5,7 @@
  * calls never do: they read the registry through pointers published with release
  * stores, which stay valid until mbfb_shutdown.
  */
+#include <sched.h>
 #include <stdlib.h>
 #include <string.h>
 
@@ -15,6 +16,27 @@ mbfb_dev_t *mbfb_devs[MBFB_MAX_DEVICES];
 
 static pthread_mutex_t registry_lock = PTHREAD_MUTEX_INITIALIZER;
 static uint32_t slot_epoch; /* first generation of a new bus's slots (under the lock) */
+
+/* Start the bus's worker as an ordinary (SCHED_OTHER) thread. A thread created from
+ * OpenPLC's scan thread would otherwise inherit its SCHED_FIFO real-time priority, and bus
+ * I/O must never compete with the scan: the scan never waits on the worker, while a worker
+ * delayed by the scan only leaves a longer gap on the line, which is always allowed. */
+static int start_worker(mbfb_bus_t *bus)
+{
+    pthread_attr_t attr;
+    struct sched_param prio;
+    int rc;
+
+    memset(&prio, 0, sizeof prio);
+    if (pthread_attr_init(&attr) != 0)
+        return -1;
+    rc = pthread_attr_setinheritsched(&attr, PTHREAD_EXPLICIT_SCHED) != 0 ||
+         pthread_attr_setschedpolicy(&attr, SCHED_OTHER) != 0 ||
+         pthread_attr_setschedparam(&attr, &prio) != 0 ||
+         pthread_create(&bus->worker, &attr, mbfb_worker_main, bus) != 0;
+    pthread_attr_destroy(&attr);
+    return rc ? -1 : 0;
+}
 
 static int is_tcp(const char *port)
 {
@@ -97,8 +119,7 @@ static int bus_create(int index, const mbfb_bus_config_t *c)
     slot_epoch += 4096; /* handles from before a shutdown stay stale */
     for (int i = 0; i < MBFB_MAX_SLOTS; i++)
         bus->slots[i].state = (slot_epoch & MBFB_GEN_MASK) << 4;
-    if (sem_init(&bus->wake, 0, 0) != 0 ||
-        pthread_create(&bus->worker, NULL, mbfb_worker_main, bus) != 0) {
+    if (sem_init(&bus->wake, 0, 0) != 0 || start_worker(bus) != 0) {
         bus_free(bus);
         return -MBFB_E_NOMEM;
     }

@@ -4,8 +4,10 @@
  * wire), queue full, cancel, stale handles, settings conflicts, a missing port, port
  * loss and reopen, several devices on one bus with one of them dead.
  */
+#include <sched.h>
 #include <string.h>
 
+#include "mbfb_internal.h"
 #include "mbfb_test.h"
 
 static peer_t P;
@@ -376,6 +378,44 @@ static void no_port(void)
     mbfb_shutdown();
 }
 
+/* ---- the worker does not inherit a real-time scan thread's priority --------------- */
+static void *open_bus_from_rt(void *arg)
+{
+    mbfb_bus_config_t c = t_cfg("/nonexistent/ttyRT0", 9600, MBFB_FRAMING_RTU, 0, -1);
+    *(int *)arg = mbfb_bus_open(&c);
+    return NULL;
+}
+
+static void worker_priority(void)
+{
+    pthread_attr_t attr;
+    struct sched_param prio = {0}, got = {0};
+    pthread_t scan;
+    int bus = -1, policy = -1;
+
+    t_scenario = "worker priority";
+    /* OpenPLC's scan thread runs SCHED_FIFO; open a bus from such a thread */
+    prio.sched_priority = 30;
+    pthread_attr_init(&attr);
+    pthread_attr_setinheritsched(&attr, PTHREAD_EXPLICIT_SCHED);
+    pthread_attr_setschedpolicy(&attr, SCHED_FIFO);
+    pthread_attr_setschedparam(&attr, &prio);
+    if (pthread_create(&scan, &attr, open_bus_from_rt, &bus) != 0) {
+        printf("worker priority: no permission for SCHED_FIFO here, not checked\n");
+        pthread_attr_destroy(&attr);
+        return;
+    }
+    pthread_join(scan, NULL);
+    pthread_attr_destroy(&attr);
+    CHECK(bus >= 0);
+    if (bus >= 0) {
+        CHECK_EQ(pthread_getschedparam(mbfb_buses[bus]->worker, &policy, &got), 0);
+        CHECK_EQ(policy, SCHED_OTHER);
+        CHECK_EQ(got.sched_priority, 0);
+    }
+    mbfb_shutdown();
+}
+
 /* ---- port lost (USB adapter pulled) and back ------------------------------------- */
 static int mute; /* __atomic */
 static void mutable_peer(peer_t *p, int n, const uint8_t *f, int len, peer_reply_t *r)
@@ -475,6 +515,7 @@ int main(void)
     queue_cancel_handles();
     conflicts();
     no_port();
+    worker_priority();
     port_lost();
     dead_device();
     return t_done("test_bus");
