@@ -17,7 +17,7 @@ from simctl import Simulator  # noqa: E402
 EXAMPLE = os.path.join(oplc.ROOT, "examples", "heat_treat_st", "heat_treat_st.st")
 PORT = 5502
 # Holding registers / coils of the example (see its header comment).
-Z1PV, Z1SV, Z1ERR, Z2PV, Z2SV, Z2ERR, COUNT, COUNTERR, BEAT = range(9)
+Z1PV, Z1SV, Z1ERR, Z2PV, Z2SV, Z2ERR, COUNT, COUNTERR, BEAT, Z1SPSTATUS, Z2SPSTATUS = range(11)
 Z2SPREQ = 1025
 C_Z1VALID, C_Z2VALID, C_Z2QUIET, C_PARTSVALID, C_ANY = 0, 3, 5, 6, 8
 
@@ -38,6 +38,16 @@ def plant(tmp_path_factory, dist):
             client.close()
             print(f"requests retried on OpenPLC's Modbus server: {client.retried}")
             print(plc.runtime_log()[-3000:])
+
+
+def fc06(frames, slave):
+    """(register, value) of each FC06 request to `slave` in the simulator's log."""
+    out = []
+    for f in frames:
+        b = [int(x, 16) for x in f["hex"].split()]
+        if f["dir"] == "rx" and len(b) >= 6 and b[0] == slave and b[1] == 6:
+            out.append((b[2] << 8 | b[3], b[4] << 8 | b[5]))
+    return out
 
 
 def hr(client, addr, count=1):
@@ -72,11 +82,14 @@ def test_set_point_reaches_the_instrument_and_pv_follows(plant):
     wait(lambda: coils(client)[C_Z2VALID], 30, "zone 2 valid")
     new = 1500  # 150.0
     assert sim.ctl("get", addr=2, reg="SV")["raw"] != new
+    sim.log(clear=True)
     t0 = time.monotonic()
     client.write(Z2SPREQ, new)
     wait(lambda: sim.ctl("get", addr=2, reg="SV")["raw"] == new, 10, "SV to reach the MV-D94")
     print(f"set point reached the simulated MV-D94 {time.monotonic() - t0:.2f} s after the Modbus write")
     wait(lambda: hr(client, Z2SV)[0] == new, 10, "the PLC to read back the new SV")
+    assert fc06(sim.log(clear=True), 2) == [(0, new)], "the request must be written exactly once"
+    assert hr(client, Z2SPSTATUS)[0] == 0
     wait(lambda: abs(s16(hr(client, Z2PV)[0]) - new) < 50, 120, "PV to follow the new set point")
 
 
@@ -95,3 +108,45 @@ def test_pulled_device_is_reported_and_recovers(plant):
     wait(lambda: coils(client)[C_Z2VALID] and not coils(client)[C_Z2QUIET], 60,
          "zone 2 to recover")
     wait(lambda: hr(client, Z2ERR)[0] == 0, 10, "ErrorID to clear")
+
+
+def test_request_written_while_the_device_is_offline_is_sent_once_it_is_valid(plant):
+    """Not used up while it cannot be checked: no FC06 while zone 2 is not valid, exactly one after."""
+    sim, plc, client = plant
+    wait(lambda: coils(client)[C_Z2VALID], 30, "zone 2 valid")
+    new = 1200 if sim.ctl("get", addr=2, reg="SV")["raw"] != 1200 else 1250
+    sim.ctl("offline", addr=2, on=True)
+    try:
+        wait(lambda: not coils(client)[C_Z2VALID], 30, "zone 2 not valid")
+        sim.log(clear=True)
+        client.write(Z2SPREQ, new)
+        time.sleep(3.0)  # longer than the program's 2 s retry wait
+        assert fc06(sim.log(clear=False), 2) == [], "a request was sent while zone 2 was not valid"
+    finally:
+        sim.ctl("offline", addr=2, on=False)
+    wait(lambda: sim.ctl("get", addr=2, reg="SV")["raw"] == new, 60, "the request to reach the MV-D94")
+    wait(lambda: hr(client, Z2SV)[0] == new, 10, "the PLC to read back the new SV")
+    time.sleep(2.5)
+    assert fc06(sim.log(clear=True), 2) == [(0, new)], "the request must be written exactly once"
+    assert hr(client, Z2SPSTATUS)[0] == 0
+
+
+def test_out_of_range_request_is_refused_not_sent_and_not_retried(plant):
+    """202 in the status register, nothing on the wire, no retry loop; the next request works."""
+    sim, plc, client = plant
+    wait(lambda: coils(client)[C_Z2VALID], 30, "zone 2 valid")
+    sv = sim.ctl("get", addr=2, reg="SV")["raw"]
+    hilt = sim.ctl("get", addr=2, reg="HILT")["raw"]  # DP=1: raw = x10
+    sim.log(clear=True)
+    client.write(Z2SPREQ, hilt + 100)
+    wait(lambda: hr(client, Z2SPSTATUS)[0] == 202, 10, "status 202 (out of range)")
+    time.sleep(5.0)  # two and a half retry waits: a retry would be an FC06 or another status
+    assert fc06(sim.log(clear=True), 2) == [], "an out-of-range set point went on the wire"
+    assert hr(client, Z2SPSTATUS)[0] == 202
+    assert sim.ctl("get", addr=2, reg="SV")["raw"] == sv
+    good = 1100 if sv != 1100 else 1150
+    client.write(Z2SPREQ, good)
+    wait(lambda: sim.ctl("get", addr=2, reg="SV")["raw"] == good, 10, "the next request to reach the MV-D94")
+    wait(lambda: hr(client, Z2SPSTATUS)[0] == 0, 10, "status 0 (sent)")
+    time.sleep(2.5)
+    assert fc06(sim.log(clear=True), 2) == [(0, good)], "the request must be written exactly once"
