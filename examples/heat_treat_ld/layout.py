@@ -152,25 +152,45 @@ class Ladder:
 
 
 # ---------------------------------------------------------------- the rungs
-ZONES = [  # n, block type, slave, instance, what, set point request register
-    (1, "FDC_Controller", 1, "Zone1", "FDC-100", 1024),
-    (2, "TempCtrl_MVD94", 2, "Zone2", "MV-D94", 1025),
+ZONES = [  # n, block type, slave, instance, what, set point request register, its status register
+    (1, "FDC_Controller", 1, "Zone1", "FDC-100", 1024, 9),
+    (2, "TempCtrl_MVD94", 2, "Zone2", "MV-D94", 1025, 10),
 ]
 
 
-def zone_rungs(ld, y, n, typ, slave, inst, what, hr):
+def zone_rungs(ld, y, n, typ, slave, inst, what, hr, status_hr):
     z = f"Z{n}"
-    ld.comment(40, y, 1400, 30, f"Zone {n} set point request: a new non-zero value in HR {hr} (x10) is sent to the {what} once.")
-    y += 50
-    ne1 = ld.block(260, y, "NE", {"IN1": f"{z}SPReq", "IN2": "0"}, w=80)
-    ne2 = ld.block(260, y + 120, "NE", {"IN1": f"{z}SPReq", "IN2": f"{z}Sent"}, w=80)
+    ld.comment(40, y, 1400, 60, f"Zone {n} set point request (HR {hr}, x10): a new value is taken while no "
+               f"write runs, and sent once the zone is Valid (its limits known). HR {status_hr} ({z}SPStatus) "
+               f"shows the result: 0 sent, else the ErrorID.")
+    y += 80
+    ne = ld.block(260, y, "NE", {"IN1": f"{z}SPReq", "IN2": f"{z}Req"}, w=80)
+    ld.outvar(420, y + 25, f"{z}New", ne)
+    y += 120
+    c1 = ld.contact(120, y + 30, f"{z}Write", [("rail", y + 40)], negated=True)
+    c2 = ld.contact(200, y + 30, f"{z}New", [c1])
+    mv = ld.block(320, y, "MOVE", {"EN": c2, "IN": f"{z}SPReq"}, w=80)
+    ld.outvar(480, y + 65, f"{z}Req", (mv, "OUT"))
+    ld.coil(900, y + 30, f"{z}Wait", [(mv, "ENO")], storage="reset")
+    y += 140
+    ne1 = ld.block(260, y, "NE", {"IN1": f"{z}Req", "IN2": "0"}, w=80)
+    ne2 = ld.block(260, y + 120, "NE", {"IN1": f"{z}Req", "IN2": f"{z}Settled"}, w=80)
     and1 = ld.block(420, y + 20, "AND", {"IN1": ne1, "IN2": ne2}, w=80)
-    ld.outvar(580, y + 45, f"{z}Write", and1)
-    i2r = ld.block(260, y + 200, "INT_TO_REAL", {"IN": f"{z}SPReq"}, w=120)
+    ld.outvar(580, y + 45, f"{z}Open", and1)
+    i2r = ld.block(260, y + 200, "INT_TO_REAL", {"IN": f"{z}Req"}, w=120)
     ten = ld.invar(260, y + 285, "10.0")
     div = ld.block(460, y + 200, "DIV", {"IN1": i2r, "IN2": ten}, w=80)
     ld.outvar(620, y + 225, f"{z}SVSet", div)
     y += 340
+    ld.comment(40, y, 1400, 30, f"Zone {n}: start an attempt when a request is open, no retry wait runs, the zone "
+               f"is Valid and the last attempt's result is gone.")
+    y += 50
+    src = ("rail", y + 40)
+    for k, (var, neg) in enumerate(((f"{z}Open", False), (f"{z}Wait", True), (f"{inst}.Valid", False),
+                                    (f"{inst}.SVDone", True), (f"{inst}.SVError", True))):
+        src = ld.contact(120 + 100 * k, y + 30, var, [src], negated=neg)
+    ld.coil(900, y + 30, f"{z}Write", [src], storage="set")
+    y += 80
 
     ld.comment(40, y, 1400, 30, f"Zone {n}: {typ} ({what}, slave {slave}) polls every 500 ms; "
                f"WriteSV sends {z}SVSet on a rising edge.")
@@ -187,12 +207,39 @@ def zone_rungs(ld, y, n, typ, slave, inst, what, hr):
         ld.outvar(940, yy + 25, var, r)
     y += ld.height(typ) + 40
 
-    ld.comment(40, y, 1400, 30, f"Zone {n}: remember the request that was sent, so it is sent once.")
-    y += 50
-    wr = ld.contact(200, y + 30, f"{z}Write", [("rail", y + 40)])
-    mv = ld.block(320, y, "MOVE", {"EN": wr, "IN": f"{z}SPReq"}, w=80)
-    ld.outvar(480, y + 65, f"{z}Sent", (mv, "OUT"))
-    return y + 160
+    ld.comment(40, y, 1400, 60, f"Zone {n}: the attempt ended (SVDone or SVError): publish SVErrorID, drop WriteSV. "
+               f"A transient error (a bus error below 128, 205 limits not read yet) waits 2 s and tries again; "
+               f"otherwise the request is settled: sent, or refused for good (202 out of range, ...).")
+    y += 80
+    c1 = ld.contact(120, y + 30, f"{z}Write", [("rail", y + 40)])
+    d = ld.contact(200, y + 30, f"{inst}.SVDone", [c1])
+    e = ld.contact(200, y + 70, f"{inst}.SVError", [c1])
+    ld.coil(900, y + 30, f"{z}End", [d, e])
+    y += 120
+    lt = ld.block(260, y, "LT", {"IN1": f"{inst}.SVErrorID", "IN2": "128"}, w=80)
+    eq = ld.block(260, y + 120, "EQ", {"IN1": f"{inst}.SVErrorID", "IN2": "205"}, w=80)
+    orb = ld.block(420, y + 20, "OR", {"IN1": lt, "IN2": eq}, w=80)
+    ld.outvar(580, y + 45, f"{z}Transient", orb)
+    y += 240
+    c1 = ld.contact(200, y + 30, f"{z}End", [("rail", y + 40)])
+    mv = ld.block(320, y, "MOVE", {"EN": c1, "IN": f"{inst}.SVErrorID"}, w=80)
+    ld.outvar(480, y + 65, f"{z}SPStatus", (mv, "OUT"))
+    ld.coil(900, y + 30, f"{z}Write", [(mv, "ENO")], storage="reset")
+    y += 140
+    c1 = ld.contact(120, y + 30, f"{z}End", [("rail", y + 40)])
+    c2 = ld.contact(200, y + 30, f"{inst}.SVError", [c1])
+    c3 = ld.contact(280, y + 30, f"{z}Transient", [c2])
+    ld.coil(900, y + 30, f"{z}Wait", [c3], storage="set")
+    y += 60
+    c1 = ld.contact(120, y + 30, f"{z}End", [("rail", y + 40)])
+    c2 = ld.contact(200, y + 30, f"{z}Wait", [c1], negated=True)
+    mv = ld.block(320, y, "MOVE", {"EN": c2, "IN": f"{z}Req"}, w=80)
+    ld.outvar(480, y + 65, f"{z}Settled", (mv, "OUT"))
+    y += 140
+    c1 = ld.contact(200, y + 30, f"{z}Wait", [("rail", y + 40)])
+    t = ld.block(320, y, "TON", {"IN": c1, "PT": "T#2s"}, instance=f"{z}RetryTmr", w=80)
+    ld.coil(900, y + 30, f"{z}Wait", [(t, "Q")], storage="reset")
+    return y + 140
 
 
 def alarm_rungs(ld, y, n):
@@ -272,11 +319,19 @@ VARS = [  # name, type, address, initial value, documentation
     ("Z2BandTmr", '<derived name="TON"/>', None, None, None),
     ("Z2QuietTmr", '<derived name="TON"/>', None, None, None),
     ("PartsQuietTmr", '<derived name="TON"/>', None, None, None),
+    ("Z1RetryTmr", '<derived name="TON"/>', None, None, None),
+    ("Z2RetryTmr", '<derived name="TON"/>', None, None, None),
 ]
 for _n in (1, 2):
     VARS += [
-        (f"Z{_n}Write", "<BOOL/>", None, None, "TRUE while a new set point request is pending"),
-        (f"Z{_n}Sent", "<INT/>", None, None, "last set point request sent, x10"),
+        (f"Z{_n}Req", "<INT/>", None, None, "the set point request being handled, x10"),
+        (f"Z{_n}New", "<BOOL/>", None, None, "a new request value in HR 102{_n - 1}"),
+        (f"Z{_n}Open", "<BOOL/>", None, None, "a request not settled yet"),
+        (f"Z{_n}Settled", "<INT/>", None, None, "the last request that ended: sent, or refused for good"),
+        (f"Z{_n}Write", "<BOOL/>", None, None, "WriteSV: TRUE from the start of an attempt to its end"),
+        (f"Z{_n}End", "<BOOL/>", None, None, "the attempt ended this scan (SVDone or SVError)"),
+        (f"Z{_n}Transient", "<BOOL/>", None, None, "SVErrorID is worth another try"),
+        (f"Z{_n}Wait", "<BOOL/>", None, None, "after a transient error: wait 2 s before trying again"),
         (f"Z{_n}SVSet", "<REAL/>", None, None, None),
         (f"Z{_n}Far", "<BOOL/>", None, None, "|PV - SV| > Band"),
     ]
@@ -290,6 +345,8 @@ VARS += [
     ("PartCount", "<UINT/>", "%QW6", None, "HR 6: part count (low 16 bits)"),
     ("CountErr", "<WORD/>", "%QW7", None, "HR 7: counter ErrorID"),
     ("Heartbeat", "<UINT/>", "%QW8", None, "HR 8: scan heartbeat"),
+    ("Z1SPStatus", "<WORD/>", "%QW9", None, "HR 9: zone 1 set point status: 0 sent (or none yet), else SVErrorID"),
+    ("Z2SPStatus", "<WORD/>", "%QW10", None, "HR 10: zone 2 set point status"),
     ("Z1SPReq", "<INT/>", "%MW0", None, "HR 1024: zone 1 set point request x10 (0 = none)"),
     ("Z2SPReq", "<INT/>", "%MW1", None, "HR 1025: zone 2 set point request x10 (0 = none)"),
     ("Z1Valid", "<BOOL/>", "%QX0.0", None, "coil 0"),

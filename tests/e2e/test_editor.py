@@ -204,3 +204,28 @@ def test_st_is_the_ld_compiled(ld):
     assert (f"TASK {task.get('name')}(INTERVAL := {task.get('interval')},PRIORITY := {task.get('priority')});"
             in st)
     assert f"PROGRAM {inst.get('name')} WITH {task.get('name')} : {inst.get('typeName')};" in st
+
+
+def test_ld_set_point_request_is_sent_only_when_valid_and_settled_on_the_result(ld):
+    """Each zone's WriteSV (ZnWrite) is set only through Valid and no pending SVDone/SVError, and
+    reset when the attempt ended; the status register takes SVErrorID."""
+    _, _, body = ld
+    els = {el.get("localId"): el for el in body}
+    st = st_text()
+    for n in (1, 2):
+        writes = [c for c in body.findall("p:coil", NS) if c.find("p:variable", NS).text == f"Z{n}Write"]
+        assert sorted(c.get("storage") for c in writes) == ["reset", "set"]
+        chain, el = [], next(c for c in writes if c.get("storage") == "set")
+        while True:  # walk the series contacts back to the rail
+            conns = el.findall("p:connectionPointIn/p:connection", NS)
+            assert len(conns) == 1
+            el = els[conns[0].get("refLocalId")]
+            if not el.tag.endswith("contact"):
+                break
+            chain.append((el.find("p:variable", NS).text, el.get("negated") == "true"))
+        assert el.tag.endswith("leftPowerRail")
+        assert set(chain) == {(f"Z{n}Open", False), (f"Z{n}Wait", True), (f"Zone{n}.Valid", False),
+                              (f"Zone{n}.SVDone", True), (f"Zone{n}.SVError", True)}
+        assert st_vars(st)[f"Z{n}SPStatus"] == (f"%QW{8 + n}", "WORD", None)
+        assert re.search(rf"MOVE\(EN := Z{n}End, IN := Zone{n}\.SVErrorID", st)
+        assert re.search(rf"WriteSV := Z{n}Write, SVSet := Z{n}SVSet\)", st)

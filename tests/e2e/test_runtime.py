@@ -50,6 +50,21 @@ def fc06(frames, slave):
     return out
 
 
+def request_while_offline(sim, slave, valid, write):
+    """Take `slave` offline, wait until not valid(), clear the simulator's log, write() the
+    request, check that no FC06 goes to it for longer than the program's 2 s retry wait, and
+    bring it back online (also on failure)."""
+    sim.ctl("offline", addr=slave, on=True)
+    try:
+        wait(lambda: not valid(), 30, f"slave {slave} not valid")
+        sim.log(clear=True)
+        write()
+        time.sleep(3.0)
+        assert fc06(sim.log(clear=False), slave) == [], "a request was sent while the zone was not valid"
+    finally:
+        sim.ctl("offline", addr=slave, on=False)
+
+
 def hr(client, addr, count=1):
     return client.hr(addr, count)
 
@@ -115,15 +130,7 @@ def test_request_written_while_the_device_is_offline_is_sent_once_it_is_valid(pl
     sim, plc, client = plant
     wait(lambda: coils(client)[C_Z2VALID], 30, "zone 2 valid")
     new = 1200 if sim.ctl("get", addr=2, reg="SV")["raw"] != 1200 else 1250
-    sim.ctl("offline", addr=2, on=True)
-    try:
-        wait(lambda: not coils(client)[C_Z2VALID], 30, "zone 2 not valid")
-        sim.log(clear=True)
-        client.write(Z2SPREQ, new)
-        time.sleep(3.0)  # longer than the program's 2 s retry wait
-        assert fc06(sim.log(clear=False), 2) == [], "a request was sent while zone 2 was not valid"
-    finally:
-        sim.ctl("offline", addr=2, on=False)
+    request_while_offline(sim, 2, lambda: coils(client)[C_Z2VALID], lambda: client.write(Z2SPREQ, new))
     wait(lambda: sim.ctl("get", addr=2, reg="SV")["raw"] == new, 60, "the request to reach the MV-D94")
     wait(lambda: hr(client, Z2SV)[0] == new, 10, "the PLC to read back the new SV")
     time.sleep(2.5)

@@ -4,6 +4,7 @@ the runtime's Modbus TCP server on loopback (private namespace), the simulator o
 as the SCADA. Register map: examples/heat_treat_ld/README.md."""
 import os
 import sys
+import time
 
 import pytest
 
@@ -12,10 +13,11 @@ from oplc import s16, wait
 
 sys.path.insert(0, os.path.join(oplc.ROOT, "tests", "sim"))
 from simctl import Simulator  # noqa: E402
+from test_runtime import fc06, request_while_offline  # noqa: E402
 
 EXAMPLE = os.path.join(oplc.ROOT, "examples", "heat_treat_ld", "heat_treat_ld.st")
 PORT = 5502
-Z1PV, Z1SV, Z1ERR, Z2PV, Z2SV, Z2ERR, COUNT, COUNTERR, BEAT = range(9)
+Z1PV, Z1SV, Z1ERR, Z2PV, Z2SV, Z2ERR, COUNT, COUNTERR, BEAT, Z1SPSTATUS, Z2SPSTATUS = range(11)
 Z1SPREQ, Z2SPREQ = 1024, 1025
 (C_Z1VALID, C_Z1BAND, C_Z1QUIET, C_Z2VALID, C_Z2BAND, C_Z2QUIET, C_PARTSVALID, C_PARTSQUIET, C_ANY,
  C_RESET) = range(10)
@@ -63,16 +65,60 @@ def test_ld_program_publishes_the_instruments(plant):
     assert not any(client.coils(10)[i] for i in ALARMS)
 
 
-@pytest.mark.parametrize("valid, req, sv, addr, reg", [
-    (C_Z1VALID, Z1SPREQ, Z1SV, 1, "SP1"), (C_Z2VALID, Z2SPREQ, Z2SV, 2, "SV")])
-def test_ld_set_point_request_reaches_the_controller(plant, valid, req, sv, addr, reg):
+ZONES = [(C_Z1VALID, Z1SPREQ, Z1SV, Z1SPSTATUS, 1, "SP1", "SP1H"),
+         (C_Z2VALID, Z2SPREQ, Z2SV, Z2SPSTATUS, 2, "SV", "HILT")]
+
+
+@pytest.mark.parametrize("valid, req, sv, status, addr, reg, hi", ZONES)
+def test_ld_set_point_request_reaches_the_controller(plant, valid, req, sv, status, addr, reg, hi):
     sim, client = plant
     wait(lambda: client.coils(10)[valid], 30, "the zone valid")
     new = 1300 if round(10 * sim.ctl("get", addr=addr, reg=reg)["eng"]) != 1300 else 1400
+    sim.log(clear=True)
     client.write(req, new)
     wait(lambda: round(10 * sim.ctl("get", addr=addr, reg=reg)["eng"]) == new, 10,
          "the set point to reach the controller")
     wait(lambda: s16(client.hr(sv)[0]) == new, 10, "the PLC to read back the new SV")
+    assert len(fc06(sim.log(clear=True), addr)) == 1, "the request must be written exactly once"
+    assert client.hr(status)[0] == 0
+
+
+@pytest.mark.parametrize("valid, req, sv, status, addr, reg, hi", ZONES)
+def test_ld_out_of_range_request_is_refused_not_sent_and_not_retried(plant, valid, req, sv, status, addr,
+                                                                     reg, hi):
+    """202 in the status register, no FC06 on the wire (so no retry loop); the next request works."""
+    sim, client = plant
+    wait(lambda: client.coils(10)[valid], 30, "the zone valid")
+    before = sim.ctl("get", addr=addr, reg=reg)["eng"]
+    bad = round(10 * sim.ctl("get", addr=addr, reg=hi)["eng"]) + 100
+    sim.log(clear=True)
+    client.write(req, bad)
+    wait(lambda: client.hr(status)[0] == 202, 10, "status 202 (out of range)")
+    time.sleep(5.0)  # two and a half retry waits
+    assert fc06(sim.log(clear=True), addr) == [], "an out-of-range set point went on the wire"
+    assert client.hr(status)[0] == 202
+    assert sim.ctl("get", addr=addr, reg=reg)["eng"] == before
+    good = 1100 if round(10 * before) != 1100 else 1150
+    client.write(req, good)
+    wait(lambda: round(10 * sim.ctl("get", addr=addr, reg=reg)["eng"]) == good, 10,
+         "the next request to reach the controller")
+    wait(lambda: client.hr(status)[0] == 0, 10, "status 0 (sent)")
+    time.sleep(2.5)
+    assert len(fc06(sim.log(clear=True), addr)) == 1, "the request must be written exactly once"
+
+
+def test_ld_request_written_while_zone1_is_offline_is_sent_once_it_is_valid(plant):
+    """Not used up while it cannot be checked: no FC06 while zone 1 is not valid, exactly one after."""
+    sim, client = plant
+    wait(lambda: client.coils(10)[C_Z1VALID], 30, "zone 1 valid")
+    new = 1250 if round(10 * sim.ctl("get", addr=1, reg="SP1")["eng"]) != 1250 else 1350
+    request_while_offline(sim, 1, lambda: client.coils(10)[C_Z1VALID], lambda: client.write(Z1SPREQ, new))
+    wait(lambda: round(10 * sim.ctl("get", addr=1, reg="SP1")["eng"]) == new, 60,
+         "the request to reach the FDC-100")
+    wait(lambda: s16(client.hr(Z1SV)[0]) == new, 10, "the PLC to read back the new SV")
+    time.sleep(2.5)
+    assert len(fc06(sim.log(clear=True), 1)) == 1, "the request must be written exactly once"
+    assert client.hr(Z1SPSTATUS)[0] == 0
 
 
 def test_ld_zone1_band_alarm_when_pv_is_held_off_the_set_point(plant):
