@@ -101,3 +101,22 @@ def crc(frame_hex):
         for _ in range(8):
             c = (c >> 1) ^ 0xA001 if c & 1 else c >> 1
     return (data + bytes([c & 0xFF, c >> 8])).hex(" ").upper()
+
+
+@pytest.fixture
+def registers_json():
+    """The resolved register maps of the shared spec (registers.json), parsed.
+
+    Looked up as $MBFB_SHARED_SPEC, else ../shared/spec beside the repository (where CI and the
+    developers' machines keep it). Missing: the test is skipped, or fails under
+    MBFB_REQUIRE_TOOLCHAIN=1, since CI always has it."""
+    import json
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    spec = os.environ.get("MBFB_SHARED_SPEC") or os.path.join(os.path.dirname(root), "shared", "spec")
+    path = os.path.join(spec, "registers.json")
+    if not os.path.exists(path):
+        if REQUIRE:
+            pytest.fail(f"shared spec not found at {path} (set MBFB_SHARED_SPEC)")
+        pytest.skip(f"shared spec not found at {path}")
+    with open(path, encoding="utf-8") as fh:
+        return json.load(fh)

@@ -152,14 +152,9 @@ def test_broadcast_applied_without_reply(sim, raw_factory):
     assert [d for d, _ in frames(sim)][-1] == "rx"
 
 
-def test_map_matches_registers_json():
-    import json
-    import os
-    path = "/work/shared/spec/registers.json"
-    if not os.path.exists(path):
-        pytest.skip("shared spec not present")
+def test_map_matches_registers_json(registers_json):
     from modsim.fdc100 import REGS
-    spec = json.load(open(path, encoding="utf-8"))["fdc_series_100"]["registers"]
+    spec = registers_json["fdc_series_100"]["registers"]
     named = {r["addr"]: r["name"] for r in spec if r["name"] not in ("-", "")}
     assert {r.addr: r.name for r in REGS if r.addr in named} == named
     assert {r["addr"]: r["scale"] for r in spec if r["name"] not in ("-", "")} == \

@@ -135,13 +135,8 @@ def test_ascii_manual_frames_and_minimalmodbus():
         assert ("rx", ":01100000000204000A0102DC\r\n".encode().hex(" ").upper()) in log
 
 
-def test_map_matches_registers_json():
-    import json
-    import os
-    path = "/work/shared/spec/registers.json"
-    if not os.path.exists(path):
-        pytest.skip("shared spec not present")
+def test_map_matches_registers_json(registers_json):
     from modsim.mts9 import REGS
-    spec = json.load(open(path, encoding="utf-8"))["mt_s9"]["registers"]
+    spec = registers_json["mt_s9"]["registers"]
     assert [(r.addr, r.name, r.words) for r in REGS] == \
         [(r["dec"], r["name"], r["words"]) for r in spec]

@@ -140,13 +140,10 @@ def test_baud_change_makes_it_deaf(sim, raw_factory):
     assert raw.xfer(crc("07 03 00 1C 00 01")).hex(" ").upper() == crc("07 03 02 00 1E")
 
 
-def test_map_matches_registers_json():
+def test_map_matches_registers_json(registers_json):
     """Names and addresses of the model = the resolved map in the shared spec."""
-    path = "/work/shared/spec/registers.json"
-    if not os.path.exists(path):
-        pytest.skip("shared spec not present")
     from modsim.mvd94 import REGS
-    spec = json.load(open(path, encoding="utf-8"))["setpro_mv_d94_and_vd"]
+    spec = registers_json["setpro_mv_d94_and_vd"]
     want = {r["addr"]: r["name"] for r in spec["holding"] + spec["input"]}
     assert {r.addr: r.name for r in REGS} == want
 
