@@ -2,6 +2,7 @@
 scratch copy, the ST example compiled by OpenPLC's compile_program.sh, the runtime core running
 with its Modbus TCP server on loopback (private namespace), the simulator on a pty, and pymodbus
 as an independent client of the PLC."""
+import contextlib
 import os
 import sys
 import time
@@ -22,14 +23,15 @@ Z2SPREQ = 1025
 C_Z1VALID, C_Z2VALID, C_Z2QUIET, C_PARTSVALID, C_ANY = 0, 3, 5, 6, 8
 
 
-@pytest.fixture(scope="module")
-def plant(tmp_path_factory, dist):
-    tmp = tmp_path_factory.mktemp("rt")
+@contextlib.contextmanager
+def running_example(tmp, dist, program, seed):
+    """The simulator with the example's devices on a pty and `program` (an examples/heat_treat_*
+    ST file) compiled into a scratch OpenPLC with plc_lib, running; yields (sim, plc, client)."""
     bus = str(tmp / "bus")
-    with Simulator(oplc.EXAMPLE_DEVICES, link=bus, time_scale=30.0, seed=1) as sim, \
+    with Simulator(oplc.EXAMPLE_DEVICES, link=bus, time_scale=30.0, seed=seed) as sim, \
             oplc.Scratch() as plc:
         plc.install(dist)
-        plc.compile(oplc.retarget(EXAMPLE, str(tmp / "heat_treat.st"), bus))
+        plc.compile(oplc.retarget(program, str(tmp / os.path.basename(program)), bus))
         plc.start(modbus_port=PORT)
         client = oplc.PlcClient(PORT)
         try:
@@ -38,6 +40,12 @@ def plant(tmp_path_factory, dist):
             client.close()
             print(f"requests retried on OpenPLC's Modbus server: {client.retried}")
             print(plc.runtime_log()[-3000:])
+
+
+@pytest.fixture(scope="module")
+def plant(tmp_path_factory, dist):
+    with running_example(tmp_path_factory.mktemp("rt"), dist, EXAMPLE, seed=1) as running:
+        yield running
 
 
 def fc06(frames, slave):

@@ -3,7 +3,6 @@ the OpenPLC Editor generated from examples/heat_treat_ld/plc.xml compiled by com
 the runtime's Modbus TCP server on loopback (private namespace), the simulator on a pty, pymodbus
 as the SCADA. Register map: examples/heat_treat_ld/README.md."""
 import os
-import sys
 import time
 
 import pytest
@@ -11,9 +10,7 @@ import pytest
 import oplc
 from oplc import s16, wait
 
-sys.path.insert(0, os.path.join(oplc.ROOT, "tests", "sim"))
-from simctl import Simulator  # noqa: E402
-from test_runtime import fc06, request_while_offline  # noqa: E402
+from test_runtime import fc06, request_while_offline, running_example  # noqa: E402
 
 EXAMPLE = os.path.join(oplc.ROOT, "examples", "heat_treat_ld", "heat_treat_ld.st")
 PORT = 5502
@@ -27,19 +24,8 @@ ALARMS = (C_Z1BAND, C_Z1QUIET, C_Z2BAND, C_Z2QUIET, C_PARTSQUIET, C_ANY)
 
 @pytest.fixture(scope="module")
 def plant(tmp_path_factory, dist):
-    tmp = tmp_path_factory.mktemp("ld")
-    bus = str(tmp / "bus")
-    with Simulator(oplc.EXAMPLE_DEVICES, link=bus, time_scale=30.0, seed=2) as sim, \
-            oplc.Scratch() as plc:
-        plc.install(dist)
-        plc.compile(oplc.retarget(EXAMPLE, str(tmp / "heat_treat_ld.st"), bus))
-        plc.start(modbus_port=PORT)
-        client = oplc.PlcClient(PORT)
-        try:
-            yield sim, client
-        finally:
-            client.close()
-            print(plc.runtime_log()[-3000:])
+    with running_example(tmp_path_factory.mktemp("ld"), dist, EXAMPLE, seed=2) as (sim, _plc, client):
+        yield sim, client
 
 
 def between(client, sim, reg, addr, sim_reg):

@@ -32,7 +32,8 @@ def test_snapshot_lists_the_located_variables_consistently(plc):
     snap = plc.snapshot()
     # Exactly the example's located variables (heat_treat_st.st), by IEC address.
     assert set(snap) == {"scan", "QW", "MW", "QX"}
-    assert sorted(snap["QW"], key=int) == [str(i) for i in range(9)]
+    # %QW0..8 values and status, %QW9/%QW10 the set point requests' status (0 = none yet)
+    assert sorted(snap["QW"], key=int) == [str(i) for i in range(11)]
     assert sorted(snap["MW"]) == ["0", "1"]
     assert sorted(snap["QX"]) == [f"0.{i}" for i in range(8)] + ["1.0"]
     # Written between two scans: the heartbeat (%QW8, +1 per scan) equals the scan count.
@@ -42,6 +43,7 @@ def test_snapshot_lists_the_located_variables_consistently(plc):
     snap = plc.snapshot()
     assert not any(snap["QX"][k] for k in ("0.0", "0.3", "0.6"))
     assert all(snap["QW"][k] != 0 for k in ("2", "5", "7"))
+    assert snap["QW"]["9"] == 0 and snap["QW"]["10"] == 0  # no request: nothing to report
 
 
 def test_runs_at_its_task_period_not_faster(plc):
