@@ -60,6 +60,9 @@ extern "C" {
 #define MBFB_E_INVAL        10  /* bad argument: slave id, count, address, fc, framing */
 #define MBFB_E_BADHANDLE    11  /* unknown or stale bus/device/request handle         */
 #define MBFB_E_NOMEM        12  /* setup could not allocate / too many buses/devices  */
+#define MBFB_E_UNCONFIRMED  13  /* write outcome unknown: no valid reply and the read-back
+                                   did not show the value; not repeated (mbfb_post_write) */
+#define MBFB_E_BAUD         14  /* baud rate the serial driver cannot set exactly        */
 #define MBFB_E_EXCEPTION_BASE 128 /* + Modbus exception code                          */
 /* Function-block input errors (st_src/): found before anything is sent.              */
 #define MBFB_E_BAD_SLAVE     200 /* SlaveId 0 for a read/monitoring block, or > 247     */
@@ -86,8 +89,11 @@ typedef struct mbfb_bus_config {
     int retries;              /* extra attempts after the first; <0 = default (3)      */
 } mbfb_bus_config_t;
 
-/** Open (or join) the bus on cfg->port. Returns a bus handle >= 0, or -MBFB_E_CONFLICT
- *  if that port is already open with other settings, -MBFB_E_INVAL for bad settings. */
+/** Open (or join) the bus on cfg->port. A serial port is identified by the device it
+ *  opens (realpath, then st_rdev of the node), so '/dev/serial/by-id/...', '//dev/x' or a
+ *  symlink join the same bus. Returns a bus handle >= 0, or -MBFB_E_CONFLICT if that port
+ *  is already open with other settings, -MBFB_E_BAUD for a baud the serial driver cannot
+ *  set exactly, -MBFB_E_INVAL for other bad settings. */
 int mbfb_bus_open(const mbfb_bus_config_t *cfg);
 
 /** Same as mbfb_bus_open with flat arguments; port need not be NUL-terminated
@@ -120,6 +126,76 @@ int mbfb_take(int req, uint16_t *values, int max);
  *  finishes its transaction and is discarded by the worker. Returns 0 or an error. */
 int mbfb_cancel(int req);
 
+/* ---- confirmed writes -------------------------------------------------------
+ * A write is DONE only when the device is known to hold it: a correct echo to a request
+ * no earlier request's late reply can match (the device is "in step", see README), or,
+ * when the outcome is unknown (no valid echo), a read-back with FC03 of the written
+ * registers once the device is in step again. Never sent again while it may have been
+ * applied. */
+#define MBFB_WRITE_IDEMPOTENT 0 /* absolute value (set points): read-back differs -> the
+                                   write was not applied -> sent again (retries allow)    */
+#define MBFB_WRITE_ONCE       1 /* command / counter preset: read-back shows it -> DONE;
+                                   else MBFB_E_UNCONFIRMED, never sent twice              */
+
+/** Post a write (fc 6 or 16) with a confirmation policy (MBFB_WRITE_*). mbfb_post's writes
+ *  are MBFB_WRITE_IDEMPOTENT. Returns a request handle > 0 or a negative error. */
+int mbfb_post_write(int dev, int fc, int addr, int count, const uint16_t *values, int policy);
+
+/* ---- refresh plans: a device's whole refresh, run by the worker ----------------
+ * A plan is the list of reads that make one refresh of a device. The worker runs a
+ * plan's reads back to back at the wire's pace, every period (0 = as often as the line
+ * allows, shared fairly with the bus's other plans), and publishes each finished refresh
+ * as one snapshot. Posted requests (writes) go before the next read of any plan.
+ * Scan side: mbfb_plan_take costs one atomic load when nothing is new; no system call,
+ * no lock, no allocation. mbfb_plan_set / _stop / _invalidate are scan-safe too. */
+#define MBFB_PLAN_MAX_ITEMS 4   /* reads per refresh                                   */
+#define MBFB_PLAN_MAX_WORDS 125 /* all items' words together (one IEC MB_REGS)         */
+#define MBFB_TIER_EVERY 0       /* read in every refresh                               */
+#define MBFB_TIER_SLOW  1       /* read when the slow tier is due: every slow period,
+                                   in the first refresh, and after mbfb_plan_invalidate */
+#define MBFB_TIER_FAST  2       /* read only in refreshes without the slow tier        */
+
+typedef struct mbfb_plan_item {
+    int fc;     /* 3 or 4 */
+    int addr;
+    int count;  /* 1..125; all items together at most MBFB_PLAN_MAX_WORDS */
+    int tier;   /* MBFB_TIER_* */
+} mbfb_plan_item_t;
+
+/** One finished refresh. words[] holds item i at offset sum(count of items < i); an
+ *  item not read in this refresh (read_mask bit clear) has its words zeroed. */
+typedef struct mbfb_snap {
+    uint32_t seq;        /* refresh number, 1, 2, ... (0: none yet)                     */
+    int32_t  result;     /* MBFB_OK, or the MBFB_E_* of the read that failed (then no
+                            word is valid)                                              */
+    uint32_t gen;        /* mbfb_plan_invalidate generation seen when this refresh
+                            started: slow items read in it were read after that call   */
+    uint32_t read_mask;  /* bit i: item i was read (and checked) in this refresh        */
+    uint16_t words[MBFB_PLAN_MAX_WORDS];
+} mbfb_snap_t;
+
+/** Open a plan on device `dev` (setup call: may allocate). Not started until
+ *  mbfb_plan_set. Returns a plan handle >= 0 or a negative error. */
+int mbfb_plan_open(int dev);
+
+/** Set a plan's reads, its period and slow period (ms) and start it (again). A refresh on
+ *  the wire finishes under the old settings. Returns 0 or -MBFB_E_INVAL (bad item, too
+ *  many words), -MBFB_E_BADHANDLE. */
+int mbfb_plan_set(int plan, const mbfb_plan_item_t *items, int n, int period_ms,
+                  int slow_period_ms);
+
+/** Stop a plan: no refresh starts after this call (Enable FALSE). 0 or an error. */
+int mbfb_plan_stop(int plan);
+
+/** Make the slow tier due in the next refresh that starts after this call (after a
+ *  command, a scaling change). Returns the new generation (compare with mbfb_snap.gen),
+ *  or a negative error. */
+int mbfb_plan_invalidate(int plan);
+
+/** If a refresh newer than *seq has finished, copy it into *out, set *seq to its number
+ *  and return 1; return 0 when nothing is new (one atomic load); or a negative error. */
+int mbfb_plan_take(int plan, uint32_t *seq, mbfb_snap_t *out);
+
 /** Per-device diagnostics. */
 typedef struct mbfb_diag {
     uint32_t requests;        /* transactions started (retries count separately below) */
@@ -136,10 +212,30 @@ typedef struct mbfb_diag {
     uint32_t stray_bytes;     /* bytes heard on this device's BUS outside any reply
                                  (late replies, noise), read and discarded; the same
                                  count for every device of the bus                    */
+    uint32_t resyncs;         /* requests sent only to get back in step after a failed
+                                 attempt (README, "Late replies")                      */
+    uint32_t refreshes;       /* plan refreshes finished well on this device          */
+    uint32_t refresh_us;      /* time between the starts of its last two refreshes    */
 } mbfb_diag_t;
 
 /** Copy the device's diagnostics into *out. Returns 0 or -MBFB_E_BADHANDLE. */
 int mbfb_dev_diag(int dev, mbfb_diag_t *out);
+
+/** A number that changes whenever the device's diagnostics change (one atomic load): copy
+ *  them with mbfb_dev_diag only when it differs from the last one seen. */
+uint32_t mbfb_dev_diag_seq(int dev);
+
+/** Bus diagnostics (shared line). */
+typedef struct mbfb_bus_diag {
+    uint32_t transactions;    /* requests put on the wire (every attempt)               */
+    uint32_t busy_permille;   /* line in use (request, turnaround, reply, gaps owed) over
+                                 the last second, 0..1000                               */
+    uint32_t plans;           /* plans running                                          */
+    uint32_t stray_bytes;     /* as mbfb_diag_t                                         */
+} mbfb_bus_diag_t;
+
+/** Copy the diagnostics of the bus of device `dev`. Returns 0 or -MBFB_E_BADHANDLE. */
+int mbfb_bus_diag(int dev, mbfb_bus_diag_t *out);
 
 /** Static text for an error code (positive or negative). Never NULL. */
 const char *mbfb_strerror(int code);
