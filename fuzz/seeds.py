@@ -1,0 +1,96 @@
+#!/usr/bin/env python3
+"""Write the seed corpora of the fuzz harnesses (fuzz/corpus/<harness>/) from the worked
+frames of the manuals (the same frames tests/shims/test_frame.c checks byte for byte).
+Run it again after changing a harness's input layout; the files are committed (small)."""
+import os
+import shutil
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+FC_SEL = {3: 0, 4: 1, 6: 2, 16: 3}
+
+# (request frame, reply frame) as printed or derived in the manuals, without check bytes:
+# SetPro MV-D94/VD 1.9, MT-S9 2.8, FDC-100 3.12 (DEVICES.md sections).
+PAIRS = [
+    ("01 03 00 00 00 01", "01 03 02 03 E8"),             # MV-D94 read SV
+    ("01 04 10 00 00 01", "01 04 02 00 1B"),             # MV-D94 read PV (FC04)
+    ("01 06 00 00 01 F4", "01 06 00 00 01 F4"),          # MV-D94 write SV 500
+    ("01 03 00 00 00 22", "01 83 02"),                   # exception 02
+    ("01 06 00 01 FF F6", "01 85 01"),                   # wrong exception function
+    ("01 03 00 00 00 02", "01 03 04 00 00 00 02"),       # MT-S9 read Real Data
+    ("01 06 00 00 00 02", "01 06 00 00 00 02"),          # MT-S9 FC06
+    ("01 10 00 00 00 02 04 00 0A 01 02", "01 10 00 00 00 02"),   # MT-S9 preset FC16
+    ("01 03 00 80 00 04", "01 03 08 03 E8 05 DC 00 00 00 00"),   # FDC PV..MV2
+    ("01 06 00 48 68 25", "01 06 00 48 68 25"),          # FDC CMND reset
+    ("01 06 00 48 68 28", "01 86 03"),                   # FDC exception 03
+]
+
+
+def b(hexs):
+    return bytes.fromhex(hexs.replace(" ", ""))
+
+
+def crc16(data):
+    crc = 0xFFFF
+    for x in data:
+        crc ^= x
+        for _ in range(8):
+            crc = (crc >> 1) ^ 0xA001 if crc & 1 else crc >> 1
+    return bytes([crc & 255, crc >> 8])
+
+
+def lrc(data):
+    return (-sum(data)) & 255
+
+
+def ascii_frame(data):
+    return b":" + (data + bytes([lrc(data)])).hex().upper().encode() + b"\r\n"
+
+
+def header(req):
+    """The 7-byte request header of fuzz_common.h for a request frame."""
+    slave, fc = req[0], req[1]
+    addr = req[2:4]
+    if fc == 6:
+        return bytes([slave, FC_SEL[fc]]) + addr + bytes([1]) + req[4:6]
+    count = req[5]
+    v0 = req[7:9] if fc == 16 else b"\0\0"
+    return bytes([slave, FC_SEL[fc]]) + addr + bytes([count]) + v0
+
+
+def write(target, name, data):
+    d = os.path.join(HERE, "corpus", target)
+    os.makedirs(d, exist_ok=True)
+    with open(os.path.join(d, name), "wb") as fh:
+        fh.write(data)
+
+
+def main():
+    shutil.rmtree(os.path.join(HERE, "corpus"), ignore_errors=True)
+    for i, (q, r) in enumerate(PAIRS):
+        req, rsp = b(q), b(r)
+        h = header(req)
+        write("fuzz_reply", f"{i:02d}", h + rsp)
+        write("fuzz_recv", f"{i:02d}_rtu", b"\0" + h + rsp + crc16(rsp))
+        write("fuzz_recv", f"{i:02d}_ascii", b"\1" + h + ascii_frame(rsp))
+        write("fuzz_recv", f"{i:02d}_nocrc", b"\2" + h + rsp + crc16(rsp))
+        mbap = bytes([0, 1, 0, 0, 0, len(rsp)])
+        write("fuzz_recv", f"{i:02d}_tcp", b"\3" + h + mbap + rsp)
+        # worker: one request, then answers: the manual's reply as raw bytes / a good one
+        for framing in (0, 1, 2):
+            wire = ascii_frame(rsp) if framing == 1 else rsp + crc16(rsp)
+            raw_answer = bytes([0, 1, len(wire)]) + wire
+            write("fuzz_worker", f"{i:02d}_f{framing}_raw",
+                  bytes([framing, 1, 0]) + h + raw_answer)
+    # worker scripts: good answers, a mutated one, silence, a late one, several requests
+    h_sv, h_pv = header(b("01 03 00 00 00 01")), header(b("01 04 10 00 00 01"))
+    h_w = header(b("01 10 00 00 00 02 04 00 0A 01 02"))
+    write("fuzz_worker", "good3", bytes([0, 1, 2]) + h_sv + h_pv + h_w + bytes([1, 0] * 3))
+    write("fuzz_worker", "mutated", bytes([0, 2, 0]) + h_sv + bytes([2, 0, 3, 0x40, 1, 0]))
+    write("fuzz_worker", "silence_then_good", bytes([1, 2, 0]) + h_sv + bytes([3, 0, 1, 0]))
+    write("fuzz_worker", "late_write", bytes([0, 2, 0]) + bytes([0x81]) + h_w[1:] +
+          bytes([4, 10, 1, 0, 1, 0]))
+    write("fuzz_worker", "ascii_two", bytes([1, 1, 1]) + h_sv + h_pv + bytes([1, 0, 1, 0]))
+
+
+if __name__ == "__main__":
+    main()
