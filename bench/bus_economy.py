@@ -26,7 +26,7 @@ import sys
 import tempfile
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-sys.path.insert(0, os.path.join(ROOT, "tests", "sim"))
+sys.path.insert(0, os.path.join(ROOT, "tools", "sim"))
 from simctl import Simulator  # noqa: E402
 
 DEFAULT_BEFORE = "e3d8370"        # last commit before the tiered polling (st_src)
@@ -169,7 +169,7 @@ def main() -> int:
     ap.add_argument("--settings-ms", type=int, default=5000)
     ap.add_argument("--scan-ms", type=int, default=5)
     args = ap.parse_args()
-    ptyline = os.path.join(args.build, "tests", "sim", "ptyline", "mbfb-ptyline")
+    ptyline = os.path.join(args.build, "tools", "sim", "ptyline", "mbfb-ptyline")
     for need in (os.path.join(args.build, "CMakeCache.txt"), ptyline,
                  os.path.join(args.build, "c_shims", "libmbfb.a")):
         if not os.path.exists(need):

@@ -11,7 +11,7 @@ import tempfile
 import time
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path[:0] = [HERE, os.path.join(HERE, "..", "sim")]
+sys.path[:0] = [HERE, os.path.join(HERE, "..", "..", "tools", "sim")]
 import oplc  # noqa: E402
 from simctl import Simulator  # noqa: E402
 

@@ -12,7 +12,7 @@ import pytest
 import oplc
 from oplc import s16, wait
 
-sys.path.insert(0, os.path.join(oplc.ROOT, "tests", "sim"))
+sys.path.insert(0, os.path.join(oplc.ROOT, "tools", "sim"))
 from simctl import Simulator  # noqa: E402
 
 EXAMPLE = os.path.join(oplc.ROOT, "examples", "heat_treat_st", "heat_treat_st.st")

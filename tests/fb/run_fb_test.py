@@ -20,7 +20,7 @@ import sys
 import tempfile
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, os.path.join(os.path.dirname(HERE), "sim"))
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(HERE)), "tools", "sim"))
 
 SKIP = 77
 
@@ -56,7 +56,7 @@ def main() -> int:
             print("MBFB_REQUIRE_TOOLCHAIN=1: a missing toolchain is a failure")
             return 1
         return SKIP
-    from simctl import Simulator  # tests/sim/simctl.py
+    from simctl import Simulator  # tools/sim/simctl.py
 
     spec = sim_spec(args.st)
     tmp = tempfile.mkdtemp(prefix="fbtest-")

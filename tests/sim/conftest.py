@@ -6,7 +6,9 @@ import sys
 
 import pytest
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+HERE = os.path.dirname(os.path.abspath(__file__))
+# The simulator (a product, tools/sim) and these helpers.
+sys.path[:0] = [HERE, os.path.join(os.path.dirname(os.path.dirname(HERE)), "tools", "sim")]
 
 REQUIRE = os.environ.get("MBFB_REQUIRE_TOOLCHAIN") == "1"
 

@@ -154,7 +154,7 @@ def os_ptyline():
     if binary is None:
         if os.environ.get("MBFB_REQUIRE_TOOLCHAIN") == "1" or os.environ.get("MBFB_PTYLINE"):
             pytest.fail("mbfb-ptyline not built")
-        pytest.skip("mbfb-ptyline not built (tests/sim/ptyline)")
+        pytest.skip("mbfb-ptyline not built (tools/sim/ptyline)")
     return binary
 
 

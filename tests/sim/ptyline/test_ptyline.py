@@ -16,7 +16,7 @@ import time
 import pytest
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-BIN = os.environ.get("PTYLINE_BIN", os.path.join(HERE, "../../../build/tests/sim/ptyline/mbfb-ptyline"))
+BIN = os.environ.get("PTYLINE_BIN", os.path.join(HERE, "../../../build/tools/sim/ptyline/mbfb-ptyline"))
 
 
 class Line:
@@ -296,7 +296,7 @@ def test_peer_close_and_reopen(line):
 
 def documented_keys():
     """Keys of the README's stats table, with <dir> and <side> expanded."""
-    with open(os.path.join(HERE, "README.md")) as f:
+    with open(os.path.join(HERE, "..", "..", "..", "tools", "sim", "ptyline", "README.md")) as f:
         keys = re.findall(r"^\| `([a-z0-9_.<>]+)` \|", f.read(), re.M)
     out = set()
     for k in keys:

@@ -42,7 +42,7 @@ class SerialLine:
         self.generation = 0             # replies scheduled before a reopen are not sent after it
         self.counters = {"tx_overflow": 0}
         self.seed = seed
-        # With --pace on a pty, the line is tests/sim/ptyline (paced both ways, with line
+        # With --pace on a pty, the line is tools/sim/ptyline (paced both ways, with line
         # statistics); the simulator then only answers on its S side and does not pace itself.
         self.ptyline = PtyLine(ptyline, self.line, seed) if ptyline and pace and not device \
             else None
@@ -226,7 +226,7 @@ class SerialLine:
     def line_stats(self) -> dict:
         if self.ptyline is None:
             return {"available": False, "why": "line statistics need --pty --pace with "
-                    "tests/sim/ptyline built (--ptyline PATH or MBFB_PTYLINE)"}
+                    "tools/sim/ptyline built (--ptyline PATH or MBFB_PTYLINE)"}
         return {"available": True, "stats": self.ptyline.stats()}
 
     async def _send(self, data: bytes, delay: float, info: str, generation: int, sent):

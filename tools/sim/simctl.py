@@ -22,7 +22,7 @@ import threading
 import time
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-ROOT = os.path.dirname(os.path.dirname(HERE))
+ROOT = os.path.dirname(os.path.dirname(HERE))  # tools/sim -> the checkout
 MBSIM = os.path.join(HERE, "mbsim.py")
 VENV_PYTHON = os.path.join(ROOT, ".venv", "bin", "python")
 

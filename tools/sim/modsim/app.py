@@ -25,7 +25,7 @@ INIT_FIRST = ("DP", "INPT", "LOLT", "HILT", "SP1L", "SP1H")   # others' scaling/
 
 
 def parse_args(argv):
-    p = argparse.ArgumentParser(prog="mbsim.py", description=__doc__ + " See tests/sim/README.md.")
+    p = argparse.ArgumentParser(prog="mbsim.py", description=__doc__ + " See tools/sim/README.md.")
     where = p.add_mutually_exclusive_group(required=True)
     where.add_argument("--pty", action="store_true", help="serve on a new pty")
     where.add_argument("--serial", metavar="DEVICE", help="serve on a serial device")
@@ -41,7 +41,7 @@ def parse_args(argv):
     p.add_argument("--faults", metavar="FILE", help="JSON list of control requests/faults")
     p.add_argument("--control", metavar="PATH", help="Unix socket of the control protocol")
     p.add_argument("--ptyline", metavar="PATH", help="mbfb-ptyline binary for --pty --pace "
-                   "(default: $MBFB_PTYLINE, else build*/tests/sim/ptyline/mbfb-ptyline; "
+                   "(default: $MBFB_PTYLINE, else build*/tools/sim/ptyline/mbfb-ptyline; "
                    "'none': pace replies inside the simulator)")
     args = p.parse_args(argv)
     if not args.device:
@@ -118,7 +118,7 @@ def find_ptyline(given: str | None) -> str | None:
         return env
     root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(
         os.path.abspath(__file__)))))
-    found = glob.glob(os.path.join(root, "build*", "tests", "sim", "ptyline", "mbfb-ptyline"))
+    found = glob.glob(os.path.join(root, "build*", "tools", "sim", "ptyline", "mbfb-ptyline"))
     found = [f for f in found if os.access(f, os.X_OK)]
     return max(found, key=os.path.getmtime) if found else None
 

@@ -1,4 +1,4 @@
-"""The ptyline program (tests/sim/ptyline, C) run by the simulator as its paced RS-485 line."""
+"""The ptyline program (tools/sim/ptyline, C) run by the simulator as its paced RS-485 line."""
 from __future__ import annotations
 
 import json
@@ -17,7 +17,7 @@ def _die_with_parent():
 
 
 class PtyLine:
-    """The ptyline program (tests/sim/ptyline) as the simulator's paced RS-485 line."""
+    """The ptyline program (tools/sim/ptyline) as the simulator's paced RS-485 line."""
 
     def __init__(self, binary: str, line, seed: int):
         self.binary, self.line, self.seed = binary, line, seed

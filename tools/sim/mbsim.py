@@ -1,8 +1,8 @@
 #!/usr/bin/env python3
 """Modbus device simulator: SetPro MV-D94/VD, MT-S9 and FDC Series 100 on a pty, a serial
-device or Modbus/TCP on 127.0.0.1. Usage and options: tests/sim/README.md (or --help).
+device or Modbus/TCP on 127.0.0.1. Usage and options: tools/sim/README.md (or --help).
 
-    .venv/bin/python tests/sim/mbsim.py --pty --device mvd94:1:SV=100.0,DP=1
+    .venv/bin/python tools/sim/mbsim.py --pty --device mvd94:1:SV=100.0,DP=1
 """
 import os
 import sys
