@@ -39,6 +39,7 @@ import math
 import os
 import random
 import shutil
+import signal
 import socket
 import statistics
 import sys
@@ -64,9 +65,8 @@ def die(msg: str):
     sys.exit(2)
 
 
-def find_simctl():
-    for rel in ("tools/sim", "tests/sim"):
-        path = os.path.join(ROOT, rel)
+def find_simctl(sim_dir=None):
+    for path in ([sim_dir] if sim_dir else [os.path.join(ROOT, r) for r in ("tools/sim", "tests/sim")]):
         if os.path.exists(os.path.join(path, "simctl.py")):
             sys.path.insert(0, path)
             import simctl  # pylint: disable=import-outside-toplevel
@@ -148,6 +148,7 @@ class Device:
         self.resume_at = 0.0
         self.fail_since = None    # time of the first failure of the current streak
         self.offline = False      # simulator outage on (soak's view, see log batches)
+        self.backoff = False      # last result: MBFB_E_OFFLINE (the shims' back-off)
         self.write_frames = {}    # frame prefix hex -> write record (for the log)
 
 
@@ -317,6 +318,11 @@ class Soak:
     def inject(self, dev, now):
         kind = self.pick_fault()
         if kind in REPLY_FAULTS:
+            if dev.backoff:
+                return   # not on the wire: the fault would wait for a reply that does not come
+            # at most one fault pending per device: one not applied yet (its reply never
+            # came: device busy or offline) is dropped, so faults cannot pile up
+            self.ctl(op="fault", addr=dev.addr, kind="clear")
             spec = {"op": "fault", "addr": dev.addr, "kind": kind, "count": 1}
             if kind == "late":
                 lo, hi = self.a.late_min_ms, self.a.late_max_ms
@@ -384,6 +390,7 @@ class Soak:
         st = self.stats
         result = 0 if rc >= 0 else -rc
         st["results"][result] = st["results"].get(result, 0) + 1
+        dev.backoff = result == E_OFFLINE
         if result == E_OFFLINE:
             st["not_sent_offline"] += 1
             dev.resume_at = now + 0.05   # a block's period: do not spin on back-off
@@ -643,6 +650,7 @@ def failed(r) -> bool:
 
 
 def main(argv=None):
+    signal.signal(signal.SIGTERM, lambda *_: sys.exit(3))   # stop the simulator on SIGTERM
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("-n", "--transactions", type=int, default=100000)
     ap.add_argument("--fault-rate", type=float, default=0.05)
@@ -657,6 +665,7 @@ def main(argv=None):
     ap.add_argument("--outage-max-s", type=float, default=5.0)
     ap.add_argument("--lib", default=os.environ.get("MBFB_SOAK_LIB"),
                     help="the shims as a shared library (build target mbfb_soak_lib)")
+    ap.add_argument("--sim-dir", help="folder of simctl.py (default: tools/sim, else tests/sim)")
     ap.add_argument("--json", help="also write the figures to this file")
     ap.add_argument("--progress", type=float, default=0, help="progress line every N s")
     a = ap.parse_args(argv)
@@ -666,7 +675,7 @@ def main(argv=None):
         die(f"bad --format {a.format!r} (8N1, 8N2, 8E1, ...)")
     if not a.lib or not os.path.exists(a.lib):
         die("the shims library is needed: --lib PATH or MBFB_SOAK_LIB (cmake target mbfb_soak_lib)")
-    simctl = find_simctl()
+    simctl = find_simctl(a.sim_dir)
     shims = Shims(a.lib)
     r = Soak(a, simctl, shims).run()
     print_report(r)
