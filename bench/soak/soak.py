@@ -248,9 +248,11 @@ class Soak:
         self.write_examples = []
         self.writes = []
         self.unrecovered = 0
+        self.final_reads = 0         # reads of the final recovery check (on the wire too)
         self.events_busy = 0         # background control ops running (reopen_port)
         self.last_log = 0.0
         self.log_frames = 0
+        self.line_bytes = self.line_frames = self.rx_frames = 0
 
     # ---- simulator ----
     def ctl(self, **req):
@@ -274,6 +276,12 @@ class Soak:
         if len(frames) >= 3990:
             self.stats["log_inconsistent"] += 1   # the log may have overflowed
         for i, f in enumerate(frames):
+            nbytes = len(f["hex"].split())
+            if nbytes:   # line use: every frame heard or sent (faulty ones included)
+                self.line_bytes += nbytes
+                self.line_frames += 1
+                if f["dir"] == "rx":
+                    self.rx_frames += 1
             if f["dir"] != "rx" or f.get("info") or not f["hex"]:
                 continue
             raw = bytes.fromhex(f["hex"])
@@ -548,6 +556,7 @@ class Soak:
             ok = False
             while time.monotonic() < deadline and not ok:
                 h = self.shims.post(dev.handle, fc, addr, count)
+                self.final_reads += 1
                 while self.shims.lib.mbfb_poll(h) not in (REQ_DONE, REQ_FAILED):
                     time.sleep(0.002)
                 rc, _ = self.shims.take(h, count)
@@ -580,10 +589,11 @@ class Soak:
         for dev in self.sim_stats["devices"].values():
             for k, v in dev.get("faults", {}).items():
                 applied[k] = applied.get(k, 0) + v
-        line = self.sim_stats["line"]
         resyncs = sum(d.resyncs for d in self.diags.values())
         retries = sum(d.retries for d in self.diags.values())
         faults = sum(self.injected.values())
+        char_s = (1 + 8 + (self.a.format[1] != "N") + int(self.a.format[2])) / self.a.baud
+        bus_s = self.line_bytes * char_s + self.line_frames * 3.5 * char_s
 
         def dist(xs):
             if not xs:
@@ -602,10 +612,13 @@ class Soak:
             "faults_injected": self.injected, "faults_applied_by_sim": applied,
             "unrecovered": self.unrecovered,
             "recovery": {k: dist(v) for k, v in self.recovery.items()},
-            "bus": {"request_frames_seen_by_sim": line["rx_frames"],
-                    "reply_frames": line["tx_frames"],
+            "bus": {"request_frames_seen_by_sim": self.rx_frames,
+                    "line_frames": self.line_frames, "line_bytes": self.line_bytes,
+                    "bus_time_s": round(bus_s, 2),
+                    "bus_ms_per_transaction": round(1000 * bus_s / max(1, s["transactions"]), 3),
                     "retries": retries, "resyncs": resyncs,
-                    "extra_frames_per_fault": round((line["rx_frames"] - s["transactions"]) /
+                    "extra_frames_per_fault": round((self.rx_frames - s["transactions"] -
+                                                     self.final_reads) /
                                                     max(1, faults), 2)},
             "wrong_examples": self.wrong_examples, "write_examples": self.write_examples,
         }
@@ -637,7 +650,8 @@ def print_report(r):
     b = r["bus"]
     p(f"  bus: {b['request_frames_seen_by_sim']} request frames for {r['transactions']} "
       f"transactions; retries {b['retries']}, resyncs {b['resyncs']}; "
-      f"{b['extra_frames_per_fault']} extra request frames per fault")
+      f"{b['extra_frames_per_fault']} extra request frames per fault; bus time "
+      f"{b['bus_time_s']} s, {b['bus_ms_per_transaction']} ms per transaction")
     for ex in r["wrong_examples"][:5]:
         p(f"  wrong: {ex}")
     for ex in r["write_examples"][:5]:
