@@ -7,7 +7,7 @@
 #
 # The PLC is the real OpenPLC v3 runtime when it is installed (OPENPLC_HOME, default
 # /opt/OpenPLC_v3: a scratch copy, in a private network namespace), else the project's own
-# runner (tests/fb/fb_host.cpp in program mode, built here with CMake in DIR, default build/)
+# runner (tools/runner/fb_host.cpp in program mode, built here with CMake in DIR, default build/)
 # when matiec is found (MATIEC_HOME, iec2c on PATH, or OpenPLC's). --runner uses the runner even
 # where OpenPLC is installed; --openplc insists on OpenPLC. Other options go to
 # examples/heat_treat_st/live.py.
@@ -58,11 +58,11 @@ if [ "$mode" = auto ]; then
 fi
 if [ "$mode" = openplc ]; then
     have_openplc || need openplc
-    exec tests/e2e/netns.sh .venv/bin/python examples/heat_treat_st/live.py --backend openplc \
+    exec tools/openplc/netns.sh .venv/bin/python examples/heat_treat_st/live.py --backend openplc \
         ${args[@]+"${args[@]}"}
 fi
 
-# The runner: build the example's program with the project's CMake (tests/fb/CMakeLists.txt).
+# The runner: build the example's program with the project's CMake (tools/runner/CMakeLists.txt).
 have_matiec || need matiec
 generator=()
 [ -f "$build/CMakeCache.txt" ] || generator=(-G Ninja)
@@ -78,4 +78,4 @@ if ! cmake --build "$build" --target heat_treat_st_runner; then
     exit 1
 fi
 exec .venv/bin/python examples/heat_treat_st/live.py --backend runner \
-    --runner-exe "$build/tests/fb/heat_treat_st_runner" ${args[@]+"${args[@]}"}
+    --runner-exe "$build/tools/runner/heat_treat_st_runner" ${args[@]+"${args[@]}"}

@@ -5,11 +5,11 @@
                      copy of OpenPLC gets plc_lib installed, compiles heat_treat_st.st with
                      OpenPLC's own compile_program.sh and runs its runtime core with the Modbus
                      TCP server on 127.0.0.1:5502; the screen reads it with pymodbus, as a SCADA.
-  --backend runner   the project's own runner (tests/fb/fb_host.cpp in program mode, built by
+  --backend runner   the project's own runner (tools/runner/fb_host.cpp in program mode, built by
                      CMake as heat_treat_st_runner; --runner-exe), where OpenPLC is missing: the
                      same scan loop, its located variables read from the snapshot file it writes
                      and set points written through its control socket, with OpenPLC's Modbus
-                     map (tests/fb/runner.py).
+                     map (tools/runner/runner.py).
 
 Both run the program with BusPort pointed at the simulator's pty. The screen shows what the
 PLC publishes next to what the simulator holds. Everything started here is stopped by pid on
@@ -27,8 +27,8 @@ import time
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(os.path.dirname(HERE))
-sys.path[:0] = [os.path.join(ROOT, "tests", "e2e"), os.path.join(ROOT, "tools", "sim"),
-                os.path.join(ROOT, "tests", "fb")]
+sys.path[:0] = [os.path.join(ROOT, "tools", "openplc"), os.path.join(ROOT, "tools", "sim"),
+                os.path.join(ROOT, "tools", "runner")]
 import oplc  # noqa: E402
 from runner import Runner  # noqa: E402
 from simctl import Simulator  # noqa: E402

@@ -1,7 +1,7 @@
 """The runner's program mode (fb_host.cpp --run) on the example program, without a simulator
 (its blocks just report no port): the snapshot of located variables, the control socket's
 set/get with every kind of bad input, --set, and a clean stop. Run by ctest (fb_runner_io) as
-    RUNNER_EXE=build/tests/fb/heat_treat_st_runner python -m pytest tests/fb/test_runner_io.py
+    RUNNER_EXE=build/tools/runner/heat_treat_st_runner python -m pytest tests/fb/test_runner_io.py
 """
 import os
 import re
@@ -14,7 +14,7 @@ import time
 
 import pytest
 
-sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..", "tools", "runner"))
 from runner import Runner, RunnerError  # noqa: E402
 
 EXE = os.environ.get("RUNNER_EXE", "")

@@ -1,5 +1,5 @@
 """Measure OpenPLC's built-in "Slave Devices" polling against the mbfb blocks on the same
-simulated bus (docs/comparison.md). Run: tests/e2e/netns.sh .venv/bin/python tests/e2e/compare.py
+simulated bus (docs/comparison.md). Run: tools/openplc/netns.sh .venv/bin/python bench/compare.py
 with MBFB_DIST set (build/plc_lib/dist). One MV-D94 (slave 2) on a paced 9600 8N2 pty line.
 Both programs publish the same map: HR0 = PV x10, HR1 = SV x10, HR2 = status (mbfb only),
 HR1024 = set point request x10."""
@@ -11,7 +11,7 @@ import tempfile
 import time
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path[:0] = [HERE, os.path.join(HERE, "..", "..", "tools", "sim")]
+sys.path[:0] = [os.path.join(HERE, "..", "tools", "openplc"), os.path.join(HERE, "..", "tools", "sim")]
 import oplc  # noqa: E402
 from simctl import Simulator  # noqa: E402
 

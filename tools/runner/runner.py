@@ -6,7 +6,7 @@
         plc.command("set %MW0 1500")   # between two scans; RunnerError if refused
 
 Runner also answers like OpenPLC's Modbus TCP server (hr, coils, write: the interface of
-tests/e2e/oplc.PlcClient), so a display reads either back end the same way. The runner process
+tools/openplc/oplc.PlcClient), so a display reads either back end the same way. The runner process
 is stopped by pid on close(); its temp directory (snapshot, socket) is removed.
 """
 import json
@@ -19,8 +19,12 @@ import sys
 import tempfile
 import time
 
-sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "e2e"))
-from oplc import _die_with_parent  # noqa: E402
+
+
+def _die_with_parent():
+    """In the child: SIGKILL it if the process that started it dies without cleaning up."""
+    import ctypes
+    ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
 
 # OpenPLC's Modbus map (core/modbus.cpp): holding registers 0..1023 = %QW, 1024..2047 = %MW,
 # coil n = %QX(n/8).(n%8). A register OpenPLC has not bound to a variable reads 0 (here too);

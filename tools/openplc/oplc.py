@@ -92,7 +92,7 @@ class Scratch:
         server on modbus_port. Returns once the interactive server answers."""
         if not in_private_netns():
             raise RuntimeError("refusing to start the OpenPLC runtime outside a private network "
-                               "namespace (its servers bind every interface): run under tests/e2e/netns.sh")
+                               "namespace (its servers bind every interface): run under tools/openplc/netns.sh")
         self.log = open(os.path.join(self.dir, "runtime.log"), "w+")
         self.proc = subprocess.Popen(["./core/openplc"], cwd=self.web, stdout=self.log,
                                      stderr=subprocess.STDOUT, start_new_session=True,
