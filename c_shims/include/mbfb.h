@@ -226,7 +226,7 @@ int mbfb_dev_diag(int dev, mbfb_diag_t *out);
 uint32_t mbfb_dev_diag_seq(int dev);
 
 /** Bus diagnostics (shared line). */
-typedef struct mbfb_bus_diag {
+typedef struct mbfb_bus_diag_s { /* tag differs from the function (C++ -Wshadow) */
     uint32_t transactions;    /* requests put on the wire (every attempt)               */
     uint32_t busy_permille;   /* line in use (request, turnaround, reply, gaps owed) over
                                  the last second, 0..1000                               */

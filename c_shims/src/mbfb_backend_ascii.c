@@ -2,7 +2,8 @@
  * mbfb_backend_ascii.c - Modbus ASCII framing: ':' + hex(frame + LRC) + CR LF.
  *
  * Written here because libmodbus has no ASCII mode. The serial port itself is still
- * opened and configured by libmodbus (mbfb_backend_lm.c); only the framing is ours.
+ * opened and configured by libmodbus (mbfb_backend_lm.c); only the framing is ours
+ * (the silence before a request: mbfb_serial.c).
  * A ':' always starts a new frame, so noise before it is skipped; a line that never
  * stops talking still ends the wait (first byte by the response timeout, the frame
  * within the longest frame's time after that).
@@ -14,6 +15,7 @@
 
 static const char hexd[] = "0123456789ABCDEF";
 
+/* Value of a hex digit, or -1. */
 static int hexval(int c)
 {
     if (c >= '0' && c <= '9')
@@ -25,6 +27,7 @@ static int hexval(int c)
     return -1;
 }
 
+/* Send ':' + hex(frame + LRC) + CR LF. */
 static int ascii_send(mbfb_bus_t *bus, const uint8_t *frame, int len)
 {
     char out[1 + 2 * (MBFB_FRAME_MAX + 1) + 2];
@@ -44,6 +47,7 @@ static int ascii_send(mbfb_bus_t *bus, const uint8_t *frame, int len)
 
 enum { A_IDLE, A_HEX, A_CR };
 
+/* Receive one ASCII frame (see the file comment); returns its binary length. */
 static int ascii_recv(mbfb_bus_t *bus, const uint8_t *req, uint8_t *frame, int max,
                       int timeout_us)
 {
@@ -107,6 +111,8 @@ static int ascii_recv(mbfb_bus_t *bus, const uint8_t *req, uint8_t *frame, int m
     }
 }
 
+/* header 0 (the ':' is framing), check: the LRC byte (two hex characters on the
+ * wire), no transaction id: resynchronised like RTU. */
 const mbfb_backend_t mbfb_backend_ascii = {
-    "ascii", mbfb_serial_open, mbfb_lm_close, mbfb_serial_quiet, NULL, ascii_send,
+    0, 1, 1, mbfb_lm_serial_open, mbfb_lm_close, mbfb_serial_quiet, NULL, ascii_send,
     ascii_recv};

@@ -1,6 +1,6 @@
 /*
  * mbfb_backend_lm.c - the backends built on libmodbus: RTU, RTU-without-CRC and TCP,
- * and the serial-port helpers every serial framing shares.
+ * and the port opening every serial framing shares.
  *
  * libmodbus does: opening and configuring the port (termios), RTU/TCP framing, the
  * CRC of requests and the framing + CRC check of replies (modbus_send_raw_request,
@@ -8,19 +8,23 @@
  * Written here, because libmodbus has no such mode: the RTU-without-CRC request
  * (MT-S9 Type 2 sends 00 00 where the CRC goes; libmodbus always appends a real
  * CRC), written straight to libmodbus's file descriptor. Its reply still carries a
- * real CRC, so it is received and checked by libmodbus like RTU. And the
- * receive-monitored silence before a request on a serial line (mbfb_serial_quiet).
+ * real CRC, so it is received and checked by libmodbus like RTU.
+ * The libmodbus context is this file's private state (bus->be_priv), as libmodbus
+ * keeps its own backend data behind ctx->backend_data.
  */
-#ifndef _GNU_SOURCE
-#define _GNU_SOURCE /* ppoll (g++ defines it already) */
-#endif
 #include <errno.h>
-#include <poll.h>
 #include <stdlib.h>
 #include <string.h>
-#include <unistd.h>
+
+#include <modbus.h>
 
 #include "mbfb_internal.h"
+
+/* The context of an open bus. */
+static modbus_t *ctx_of(mbfb_bus_t *bus)
+{
+    return (modbus_t *)bus->be_priv;
+}
 
 int mbfb_errno_to_err(int err)
 {
@@ -39,6 +43,21 @@ int mbfb_errno_to_err(int err)
     }
 }
 
+/* The speeds _modbus_rtu_connect() maps to a termios B* constant on Linux, in
+ * libmodbus 3.1.6 and in OpenPLC's 3.1.2-based fork alike; any other value is set as
+ * B9600 without an error (README "Port identity and baud"). */
+int mbfb_lm_baud_ok(int baud)
+{
+    static const int speeds[] = {110,     300,     600,     1200,    2400,    4800,
+                                 9600,    19200,   38400,   57600,   115200,  230400,
+                                 460800,  500000,  576000,  921600,  1000000, 1152000,
+                                 1500000, 2500000, 3000000, 3500000, 4000000};
+    for (size_t i = 0; i < sizeof speeds / sizeof speeds[0]; i++)
+        if (speeds[i] == baud)
+            return 1;
+    return 0;
+}
+
 /* Set up a fresh libmodbus context: no error recovery of its own (the worker does
  * retries and resynchronisation), our byte timeout. */
 static int lm_connect(mbfb_bus_t *bus, modbus_t *ctx)
@@ -55,13 +74,13 @@ static int lm_connect(mbfb_bus_t *bus, modbus_t *ctx)
         modbus_free(ctx);
         return -MBFB_E_NOPORT;
     }
-    bus->ctx = ctx;
+    bus->be_priv = ctx;
     bus->fd = modbus_get_socket(ctx);
     bus->quiet_from_us = mbfb_now_us();
     return 0;
 }
 
-int mbfb_serial_open(mbfb_bus_t *bus)
+int mbfb_lm_serial_open(mbfb_bus_t *bus)
 {
     const mbfb_bus_config_t *c = &bus->cfg;
     return lm_connect(bus, modbus_new_rtu(c->port, c->baud, c->parity, c->data_bits,
@@ -89,11 +108,11 @@ static int tcp_open(mbfb_bus_t *bus)
 
 void mbfb_lm_close(mbfb_bus_t *bus)
 {
-    if (bus->ctx) {
-        modbus_close(bus->ctx);
-        modbus_free(bus->ctx);
+    if (bus->be_priv) {
+        modbus_close(ctx_of(bus));
+        modbus_free(ctx_of(bus));
     }
-    bus->ctx = NULL;
+    bus->be_priv = NULL;
     bus->fd = -1;
 }
 
@@ -101,132 +120,68 @@ void mbfb_lm_close(mbfb_bus_t *bus)
  * fall silent: the silence is ignored). Returns the bytes it dropped. */
 static int tcp_quiet(mbfb_bus_t *bus, int silence_us, int limit_us)
 {
-    int n = modbus_flush(bus->ctx);
+    int n = modbus_flush(ctx_of(bus));
     (void)silence_us, (void)limit_us;
     return n > 0 ? n : 0;
 }
 
-int mbfb_fd_wait_input(int fd, int64_t wait_us)
-{
-    struct pollfd p = {fd, POLLIN, 0};
-    struct timespec ts;
-    int rc;
-
-    if (wait_us < 0)
-        wait_us = 0;
-    ts.tv_sec = (time_t)(wait_us / 1000000);
-    ts.tv_nsec = (long)(wait_us % 1000000) * 1000;
-    while ((rc = ppoll(&p, 1, &ts, NULL)) < 0 && errno == EINTR) {
-    }
-    return rc < 0 ? -1 : rc > 0;
-}
-
-/* Serial: wait until the line has been silent for silence_us, reading and discarding
- * whatever arrives meanwhile (see mbfb_backend_t.quiet). Written here because
- * libmodbus only flushes, and modbus_flush() on a serial port is tcflush(TCIOFLUSH):
- * it would also drop output not yet on the wire (on a pty: a broadcast the peer has
- * not read) and it cannot tell a finished line from one still carrying a late reply. */
-int mbfb_serial_quiet(mbfb_bus_t *bus, int silence_us, int limit_us)
-{
-    int64_t give_up = mbfb_now_us() + limit_us;
-    int stray = 0;
-
-    for (;;) {
-        uint8_t junk[256];
-        int64_t end = bus->quiet_from_us + silence_us;
-        ssize_t n;
-        int rc;
-
-        if (end > give_up)
-            end = give_up; /* babbling line: send anyway, the reply check decides */
-        rc = mbfb_fd_wait_input(bus->fd, end - mbfb_now_us());
-        if (rc <= 0)
-            return rc < 0 ? -MBFB_E_PORTLOST : stray; /* silent until `end` */
-        /* readable: a tty with VMIN = VTIME = 0 returns 0 only when it is gone */
-        n = read(bus->fd, junk, sizeof junk);
-        if (n > 0) {
-            int64_t now = mbfb_now_us();
-            stray += (int)n;
-            if (bus->quiet_from_us < now) /* a byte restarts the silence */
-                bus->quiet_from_us = now;
-            if (now >= give_up)
-                return stray;
-        } else if (n == 0 || (errno != EAGAIN && errno != EINTR)) {
-            return -MBFB_E_PORTLOST; /* EOF (adapter gone) or EIO */
-        }
-    }
-}
-
-static void tcp_resync(mbfb_bus_t *bus)
+/* TCP after a failed attempt: a new connection, on which no late reply can come. */
+static void tcp_reconnect(mbfb_bus_t *bus)
 {
     mbfb_lm_close(bus);
     tcp_open(bus); /* on failure the port stays closed; the next request reopens */
 }
 
+/* Send a frame with libmodbus's framing (RTU CRC or MBAP header). */
 static int lm_send(mbfb_bus_t *bus, const uint8_t *frame, int len)
 {
     uint8_t raw[MBFB_FRAME_MAX]; /* OpenPLC's libmodbus takes a non-const pointer */
     memcpy(raw, frame, (size_t)len);
-    return modbus_send_raw_request(bus->ctx, raw, len) == -1 ? mbfb_errno_to_err(errno) : 0;
+    return modbus_send_raw_request(ctx_of(bus), raw, len) == -1 ? mbfb_errno_to_err(errno)
+                                                                : 0;
 }
 
-int mbfb_fd_write_all(mbfb_bus_t *bus, const uint8_t *buf, int len)
-{
-    int done = 0;
-    while (done < len) {
-        ssize_t n = write(bus->fd, buf + done, (size_t)(len - done));
-        if (n > 0) {
-            done += (int)n;
-        } else if (n < 0 && (errno == EAGAIN || errno == EINTR)) {
-            struct pollfd p = {bus->fd, POLLOUT, 0};
-            if (poll(&p, 1, 1000) == 0)
-                return -MBFB_E_PORTLOST; /* output stuck for a second */
-        } else {
-            return -MBFB_E_PORTLOST;
-        }
-    }
-    return 0;
-}
-
+/* MT-S9 Type 2: the frame and 00 00 where the CRC goes, written to the port. */
 static int nocrc_send(mbfb_bus_t *bus, const uint8_t *frame, int len)
 {
     uint8_t raw[MBFB_FRAME_MAX];
     memcpy(raw, frame, (size_t)len);
-    raw[len] = 0; /* MT-S9 Type 2: "CRC check 0000" */
+    raw[len] = 0; /* "CRC check 0000" */
     raw[len + 1] = 0;
     return mbfb_fd_write_all(bus, raw, len + 2);
 }
 
+/* Receive and check (framing, CRC) one reply with libmodbus; strip header and CRC
+ * with the lengths of the bus's backend table. */
 static int lm_recv(mbfb_bus_t *bus, const uint8_t *req, uint8_t *frame, int max,
                    int timeout_us)
 {
     uint8_t adu[MODBUS_TCP_MAX_ADU_LENGTH + 4];
-    int hl, cks, n, rc;
+    modbus_t *ctx = ctx_of(bus);
+    int hl = bus->be->header_len, n, rc;
 
-    (void)req; /* libmodbus frames the reply by its function code */
-    modbus_set_slave(bus->ctx, req[0]);
-    modbus_set_response_timeout(bus->ctx, (uint32_t)(timeout_us / 1000000),
+    modbus_set_slave(ctx, req[0]); /* libmodbus frames the reply by its function code */
+    modbus_set_response_timeout(ctx, (uint32_t)(timeout_us / 1000000),
                                 (uint32_t)(timeout_us % 1000000));
-    rc = modbus_receive_confirmation(bus->ctx, adu);
+    rc = modbus_receive_confirmation(ctx, adu);
     if (rc == -1)
         return mbfb_errno_to_err(errno);
     if (rc == 0)
         return -MBFB_E_BADREPLY; /* RTU: libmodbus dropped a reply from another slave */
-    hl = modbus_get_header_length(bus->ctx);       /* RTU 1, TCP 7 (MBAP + unit) */
-    cks = bus->cfg.framing == MBFB_FRAMING_TCP ? 0 : 2;
-    n = rc - (hl - 1) - cks;                         /* unit id + PDU             */
+    n = rc - hl - bus->be->check_len; /* unit id + PDU */
     if (n < 2 || n > max)
         return -MBFB_E_BADREPLY;
-    memcpy(frame, adu + hl - 1, (size_t)n);
+    memcpy(frame, adu + hl, (size_t)n);
     return n;
 }
 
+/* header, check, needs_resync, open, close, quiet, reconnect, send, recv */
 const mbfb_backend_t mbfb_backend_rtu = {
-    "rtu", mbfb_serial_open, mbfb_lm_close, mbfb_serial_quiet, NULL, lm_send, lm_recv};
+    0, 2, 1, mbfb_lm_serial_open, mbfb_lm_close, mbfb_serial_quiet, NULL, lm_send, lm_recv};
 
 const mbfb_backend_t mbfb_backend_nocrc = {
-    "rtu-nocrc", mbfb_serial_open, mbfb_lm_close, mbfb_serial_quiet, NULL, nocrc_send,
+    0, 2, 1, mbfb_lm_serial_open, mbfb_lm_close, mbfb_serial_quiet, NULL, nocrc_send,
     lm_recv};
 
 const mbfb_backend_t mbfb_backend_tcp = {
-    "tcp", tcp_open, mbfb_lm_close, tcp_quiet, tcp_resync, lm_send, lm_recv};
+    6, 0, 0, tcp_open, mbfb_lm_close, tcp_quiet, tcp_reconnect, lm_send, lm_recv};

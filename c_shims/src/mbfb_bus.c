@@ -5,16 +5,20 @@
  * calls never do: they read the registry through pointers published with release
  * stores, which stay valid until mbfb_shutdown.
  */
+#include <limits.h>
 #include <sched.h>
+#include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/stat.h>
 
 #include "mbfb_internal.h"
 
 mbfb_bus_t *mbfb_buses[MBFB_MAX_BUSES];
 mbfb_dev_t *mbfb_devs[MBFB_MAX_DEVICES];
+mbfb_plan_t *mbfb_plans[MBFB_MAX_PLANS];
 
-static pthread_mutex_t registry_lock = PTHREAD_MUTEX_INITIALIZER;
+pthread_mutex_t mbfb_registry_lock = PTHREAD_MUTEX_INITIALIZER;
 static uint32_t slot_epoch; /* first generation of a new bus's slots (under the lock) */
 
 /* Start the bus's worker as an ordinary (SCHED_OTHER) thread. A thread created from
@@ -38,12 +42,13 @@ static int start_worker(mbfb_bus_t *bus)
     return rc ? -1 : 0;
 }
 
+/* "tcp://..." ports are Modbus TCP. */
 static int is_tcp(const char *port)
 {
     return strncmp(port, "tcp://", 6) == 0;
 }
 
-/* Check and normalise a configuration. 0 or MBFB_E_INVAL. */
+/* Check and normalise a configuration. 0, MBFB_E_INVAL or MBFB_E_BAUD. */
 static int normalise(mbfb_bus_config_t *c)
 {
     if (c->port == NULL || c->port[0] == 0 || strlen(c->port) > 255)
@@ -66,14 +71,55 @@ static int normalise(mbfb_bus_config_t *c)
     }
     if (c->parity == 'n' || c->parity == 'e' || c->parity == 'o')
         c->parity = (char)(c->parity - 'a' + 'A');
-    if (c->baud < 50 || c->baud > 4000000 ||
-        (c->parity != 'N' && c->parity != 'E' && c->parity != 'O') ||
+    if (c->baud <= 0 || (c->parity != 'N' && c->parity != 'E' && c->parity != 'O') ||
         (c->stop_bits != 1 && c->stop_bits != 2) ||
         (c->data_bits != 8 && !(c->data_bits == 7 && c->framing == MBFB_FRAMING_ASCII)))
         return MBFB_E_INVAL; /* RTU is binary: 8 data bits */
+    if (!mbfb_lm_baud_ok(c->baud))
+        return MBFB_E_BAUD; /* libmodbus would run the port at 9600 instead */
     return 0;
 }
 
+/* The path with '//' collapsed and '.' segments removed (a port that does not exist
+ * yet cannot be resolved). */
+static void normal_path(const char *in, char *out, size_t n)
+{
+    size_t k = 0;
+    while (*in && k + 1 < n) {
+        if (in[0] == '/' && (in[1] == '/' || (in[1] == '.' && (in[2] == '/' || !in[2])))) {
+            in += in[1] == '/' ? 1 : 2;
+            continue;
+        }
+        out[k++] = *in++;
+    }
+    if (k > 1 && out[k - 1] == '/')
+        k--;
+    out[k] = 0;
+}
+
+/* Identity of a port (README "Port identity"): the node it opens. A character device
+ * by its device number, another file by device + inode, a path that does not resolve
+ * by its normalised text, tcp:// by its text. */
+static void port_key(const char *port, char *key, size_t n)
+{
+    char real[PATH_MAX], norm[PATH_MAX];
+    struct stat st;
+
+    if (is_tcp(port)) {
+        snprintf(key, n, "%s", port);
+    } else if (realpath(port, real) != NULL && stat(real, &st) == 0) {
+        if (S_ISCHR(st.st_mode))
+            snprintf(key, n, "chr:%llu", (unsigned long long)st.st_rdev);
+        else
+            snprintf(key, n, "ino:%llu:%llu", (unsigned long long)st.st_dev,
+                     (unsigned long long)st.st_ino);
+    } else {
+        normal_path(port, norm, sizeof norm);
+        snprintf(key, n, "path:%s", norm);
+    }
+}
+
+/* Same line settings (the port is compared by key). */
 static int same_settings(const mbfb_bus_config_t *a, const mbfb_bus_config_t *b)
 {
     return a->baud == b->baud && a->parity == b->parity && a->data_bits == b->data_bits &&
@@ -81,6 +127,7 @@ static int same_settings(const mbfb_bus_config_t *a, const mbfb_bus_config_t *b)
            a->response_timeout_ms == b->response_timeout_ms && a->retries == b->retries;
 }
 
+/* The backend table of a framing. */
 static const mbfb_backend_t *backend_for(int framing)
 {
     switch (framing) {
@@ -91,23 +138,29 @@ static const mbfb_backend_t *backend_for(int framing)
     }
 }
 
+/* Free a bus (its worker has stopped). */
 static void bus_free(mbfb_bus_t *bus)
 {
     free(bus->port);
+    free(bus->key);
     free(bus);
 }
 
 /* Allocate a bus and start its worker. Called with the registry lock held. */
-static int bus_create(int index, const mbfb_bus_config_t *c)
+static int bus_create(int index, const mbfb_bus_config_t *c, const char *key)
 {
     mbfb_bus_t *bus = (mbfb_bus_t *)calloc(1, sizeof *bus);
-    size_t n = strlen(c->port) + 1;
+    size_t n = strlen(c->port) + 1, kn = strlen(key) + 1;
 
-    if (bus == NULL || (bus->port = (char *)malloc(n)) == NULL) {
+    if (bus == NULL || (bus->port = (char *)malloc(n)) == NULL ||
+        (bus->key = (char *)malloc(kn)) == NULL) {
+        if (bus != NULL)
+            free(bus->port);
         free(bus);
         return -MBFB_E_NOMEM;
     }
     memcpy(bus->port, c->port, n);
+    memcpy(bus->key, key, kn);
     bus->cfg = *c;
     bus->cfg.port = bus->port;
     bus->be = backend_for(c->framing);
@@ -130,31 +183,35 @@ static int bus_create(int index, const mbfb_bus_config_t *c)
 int mbfb_bus_open(const mbfb_bus_config_t *cfg)
 {
     mbfb_bus_config_t c;
+    char key[PATH_MAX + 32];
     int rc = -MBFB_E_NOMEM, free_index = -1;
 
     if (cfg == NULL)
         return -MBFB_E_INVAL;
     c = *cfg;
-    if (normalise(&c) != 0)
-        return -MBFB_E_INVAL;
-    pthread_mutex_lock(&registry_lock);
+    if ((rc = normalise(&c)) != 0)
+        return -rc;
+    rc = -MBFB_E_NOMEM;
+    port_key(c.port, key, sizeof key);
+    pthread_mutex_lock(&mbfb_registry_lock);
     for (int i = 0; i < MBFB_MAX_BUSES; i++) {
         mbfb_bus_t *b = mbfb_buses[i];
         if (b == NULL) {
             if (free_index < 0)
                 free_index = i;
-        } else if (strcmp(b->port, c.port) == 0) {
+        } else if (strcmp(b->key, key) == 0) {
             rc = same_settings(&b->cfg, &c) ? i : -MBFB_E_CONFLICT;
             free_index = -2;
             break;
         }
     }
     if (free_index >= 0)
-        rc = bus_create(free_index, &c);
-    pthread_mutex_unlock(&registry_lock);
+        rc = bus_create(free_index, &c, key);
+    pthread_mutex_unlock(&mbfb_registry_lock);
     return rc;
 }
 
+/* mbfb_bus_open with an IEC STRING's body (trailing blanks trimmed). */
 int mbfb_bus_open_args(const char *port, int port_len, int baud, int parity, int data_bits,
                        int stop_bits, int framing, int response_timeout_ms, int retries)
 {
@@ -187,13 +244,14 @@ int mbfb_dev_open(int bus, int slave)
     mbfb_bus_t *b;
     int rc = -MBFB_E_NOMEM;
 
+    /* Device handle for (bus, slave): found or allocated under the registry lock. */
     if (bus < 0 || bus >= MBFB_MAX_BUSES ||
         (b = __atomic_load_n(&mbfb_buses[bus], __ATOMIC_ACQUIRE)) == NULL)
         return -MBFB_E_BADHANDLE;
     /* Modbus serial: 1..247, 0 = broadcast; TCP unit identifiers go to 255 */
-    if (slave < 0 || slave > (b->cfg.framing == MBFB_FRAMING_TCP ? 255 : 247))
+    if (slave < 0 || slave > (b->cfg.framing == MBFB_FRAMING_TCP ? MBFB_MAX_UNIT : MBFB_MAX_SLAVE))
         return -MBFB_E_INVAL;
-    pthread_mutex_lock(&registry_lock);
+    pthread_mutex_lock(&mbfb_registry_lock);
     for (int i = 0; i < MBFB_MAX_DEVICES; i++) {
         mbfb_dev_t *d = mbfb_devs[i];
         if (d != NULL && d->bus == bus && d->slave == slave) {
@@ -205,19 +263,21 @@ int mbfb_dev_open(int bus, int slave)
             if (d != NULL) {
                 d->bus = bus;
                 d->slave = slave;
+                d->in_step = 1; /* nothing sent yet: nothing can be late */
                 __atomic_store_n(&mbfb_devs[i], d, __ATOMIC_RELEASE);
                 rc = i;
             }
             break;
         }
     }
-    pthread_mutex_unlock(&registry_lock);
+    pthread_mutex_unlock(&mbfb_registry_lock);
     return rc;
 }
 
+/* Stop every worker, then free buses, plans and devices. */
 void mbfb_shutdown(void)
 {
-    pthread_mutex_lock(&registry_lock);
+    pthread_mutex_lock(&mbfb_registry_lock);
     for (int i = 0; i < MBFB_MAX_BUSES; i++) {
         mbfb_bus_t *b = mbfb_buses[i];
         if (b == NULL)
@@ -229,9 +289,13 @@ void mbfb_shutdown(void)
         sem_destroy(&b->wake);
         bus_free(b);
     }
+    for (int i = 0; i < MBFB_MAX_PLANS; i++) {
+        free(mbfb_plans[i]);
+        __atomic_store_n(&mbfb_plans[i], (mbfb_plan_t *)NULL, __ATOMIC_RELEASE);
+    }
     for (int i = 0; i < MBFB_MAX_DEVICES; i++) {
         free(mbfb_devs[i]);
         __atomic_store_n(&mbfb_devs[i], (mbfb_dev_t *)NULL, __ATOMIC_RELEASE);
     }
-    pthread_mutex_unlock(&registry_lock);
+    pthread_mutex_unlock(&mbfb_registry_lock);
 }

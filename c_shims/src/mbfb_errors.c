@@ -3,6 +3,7 @@
  */
 #include "mbfb.h"
 
+/* Static text of any code (positive or negative). */
 const char *mbfb_strerror(int code)
 {
     static const char *const text[] = {
@@ -19,6 +20,9 @@ const char *mbfb_strerror(int code)
         "invalid argument",
         "unknown or stale handle",
         "out of memory or too many buses/devices",
+        "write unconfirmed: no valid echo and the read-back did not show the value; "
+        "not repeated",
+        "baud rate the serial driver cannot set exactly",
     };
     static const char *const exc[] = {
         "Modbus exception",

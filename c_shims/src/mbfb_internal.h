@@ -13,21 +13,29 @@
 #include <stdint.h>
 #include <time.h>
 
-#include <modbus.h>
-
 #include "mbfb.h"
 
 #ifdef __cplusplus
 extern "C" {
 #endif
 
-/* ---- limits -------------------------------------------------------------- */
+/* ---- protocol limits (Modbus application protocol 1.1b3, 6.3 / 6.12) ---------- */
+#define MBFB_MAX_READ      125  /* FC03/FC04 registers per request                */
+#define MBFB_MAX_WRITE     123  /* FC16 registers per request                     */
+#define MBFB_FRAME_MAX     256  /* slave + PDU (253) + 2 check bytes              */
+#define MBFB_MAX_SLAVE     247  /* serial addresses 1..247, 0 = broadcast         */
+#define MBFB_MAX_UNIT      255  /* Modbus TCP unit identifiers                    */
+
+/* ---- sizes of this library -------------------------------------------------- */
 #define MBFB_MAX_BUSES     16   /* 4 bits of a request handle                     */
 #define MBFB_MAX_SLOTS     64   /* request slots per bus; 6 bits of a handle      */
 #define MBFB_MAX_DEVICES   256
-#define MBFB_MAX_READ      125  /* FC03/FC04 registers per request (Modbus limit) */
-#define MBFB_MAX_WRITE     123  /* FC16 registers per request (Modbus limit)      */
-#define MBFB_FRAME_MAX     256  /* slave + PDU (253) + 2 check bytes              */
+#define MBFB_PLANS_PER_BUS 64   /* refresh plans per bus (32 devices x 2)         */
+#define MBFB_MAX_PLANS     (MBFB_MAX_BUSES * MBFB_PLANS_PER_BUS)
+#define MBFB_OUTSTANDING_MAX 8  /* reply shapes of failed attempts kept per device */
+#define MBFB_KNOWN_READS   4    /* ranges that read well, remembered per device    */
+
+/* ---- policy ----------------------------------------------------------------- */
 #define MBFB_DEFAULT_RETRIES 3  /* SetPro manual 5.6: retry at least 3 times      */
 #define MBFB_OFFLINE_AFTER   3  /* consecutive failed transactions -> back-off    */
 #define MBFB_PROBE_FIRST_MS  500
@@ -36,6 +44,12 @@ extern "C" {
 #define MBFB_PROCESSING_US   10000 /* device processing time used in timeouts      */
 #define MBFB_QUIET_LIMIT_T   3  /* a line that never falls silent is waited for at most
                                    the silence + this many response timeouts         */
+/* A reply later than this after its request is assumed impossible: an outstanding
+ * reply shape older than this may be used again (README "Late replies"). The three
+ * instruments answer within 10 ms of processing (SetPro) to ~100 ms (FDC EEPROM
+ * writes); 10 s is 100 times the worst, and longer than the simulator's and the
+ * soak's 5 s late replies. */
+#define MBFB_LATE_MAX_MS     10000
 
 /* ---- CRC / LRC / frames (mbfb_frame.c) --------------------------------------
  * A "frame" here is slave id + PDU, without CRC, LRC or MBAP header: the backends
@@ -67,24 +81,32 @@ typedef struct mbfb_timing {
     int byte_us;      /* max silence inside a reply once it started             */
 } mbfb_timing_t;
 
+/** Derive the line timing from baud and character format (README "Timing"). */
 void mbfb_timing_init(mbfb_timing_t *t, int baud, char parity, int data_bits, int stop_bits);
 /** Bytes on the wire for a frame of `frame_len` (slave+PDU) in a framing. */
 int mbfb_wire_len(int framing, int frame_len);
 /** Derived response timeout (us) for a request/reply pair (see README formula). */
 int mbfb_response_timeout_us(const mbfb_timing_t *t, int framing, int req_frame_len,
                              int rsp_frame_len);
-
-/* ---- monotonic clock helpers (mbfb_timing.c) ------------------------------- */
+/** Monotonic clock in microseconds. */
 int64_t mbfb_now_us(void);
 
 /* ---- backends ---------------------------------------------------------------
- * One struct of function pointers per transport, like libmodbus's own backend
- * struct. All return 0 / a length on success, or a negative -MBFB_E_* code:
- * -MBFB_E_TIMEOUT, -MBFB_E_CRC, -MBFB_E_BADREPLY, -MBFB_E_PORTLOST, -MBFB_E_NOPORT. */
+ * One struct per transport, like libmodbus's own backend struct: transport data and
+ * function pointers. Functions return 0 / a length on success, or a negative
+ * -MBFB_E_* code: -MBFB_E_TIMEOUT, -MBFB_E_CRC, -MBFB_E_BADREPLY, -MBFB_E_PORTLOST,
+ * -MBFB_E_NOPORT. A backend keeps its own state (the libmodbus context) behind
+ * bus->be_priv; the worker sees only bus->fd. */
 struct mbfb_bus;
 typedef struct mbfb_backend {
-    const char *name;
+    int header_len;   /* bytes before the slave id on the wire (TCP MBAP: 6)          */
+    int check_len;    /* check bytes after the frame (CRC 2, LRC 1 (hex: 2), TCP 0)   */
+    int needs_resync; /* 1: no transaction id; after a failed attempt the device is out
+                         of step until a resync read is answered (serial lines).
+                         0: a failed attempt reconnects (TCP), which is in step.      */
+    /** Open the port (the worker, on the first request or after a loss). */
     int  (*open)(struct mbfb_bus *bus);
+    /** Close the port; bus->fd becomes -1. */
     void (*close)(struct mbfb_bus *bus);
     /** Before every attempt: discard pending input and, on a serial line, wait until
      *  the line has been silent for silence_us since bus->quiet_from_us; every byte
@@ -92,10 +114,10 @@ typedef struct mbfb_backend {
      *  all the wait ends anyway (a babbling line). Returns the bytes discarded (>= 0)
      *  or -MBFB_E_PORTLOST. */
     int  (*quiet)(struct mbfb_bus *bus, int silence_us, int limit_us);
-    /** After a failed attempt, or NULL: TCP reconnects (a late reply can only come on
-     *  the old connection). Serial lines need nothing here: the worker asks quiet()
-     *  for a longer silence before the next request instead. */
-    void (*resync)(struct mbfb_bus *bus);
+    /** After a failed attempt when !needs_resync: reconnect (a late reply can only
+     *  come on the old connection). NULL for serial lines. */
+    void (*reconnect)(struct mbfb_bus *bus);
+    /** Send one request frame (slave + PDU); the backend adds header and check bytes. */
     int  (*send)(struct mbfb_bus *bus, const uint8_t *frame, int len);
     /** Receive one reply frame (slave + PDU, check bytes stripped and verified).
      *  `req` is the request frame (for lengths); timeout_us is for the first byte. */
@@ -108,19 +130,24 @@ extern const mbfb_backend_t mbfb_backend_nocrc;  /* libmodbus RTU, 00 00 sent as
 extern const mbfb_backend_t mbfb_backend_ascii;  /* ':' hex LRC CR LF, written here  */
 extern const mbfb_backend_t mbfb_backend_tcp;    /* libmodbus TCP                  */
 
-/* serial port helpers shared by the serial backends (mbfb_backend_lm.c): the port is
- * opened and configured by libmodbus (modbus_new_rtu + modbus_connect) for every
- * serial framing, so termios settings are never hand-written. */
-int  mbfb_serial_open(struct mbfb_bus *bus);
+/* libmodbus helpers (mbfb_backend_lm.c): every serial framing's port is opened and
+ * configured by libmodbus (modbus_new_rtu + modbus_connect), so termios settings are
+ * never hand-written; the context lives in bus->be_priv. */
+int  mbfb_lm_serial_open(struct mbfb_bus *bus);
 void mbfb_lm_close(struct mbfb_bus *bus);
+/** Map an errno from libmodbus or read/write to -MBFB_E_*. */
+int  mbfb_errno_to_err(int err);
+/** 1 if libmodbus's RTU backend sets `baud` exactly (its speed table), else 0. */
+int  mbfb_lm_baud_ok(int baud);
+
+/* serial helpers (mbfb_serial.c) */
+/** The watched silence of every serial framing (see mbfb_backend_t.quiet). */
 int  mbfb_serial_quiet(struct mbfb_bus *bus, int silence_us, int limit_us);
 /** Wait up to wait_us (microseconds) for input on fd: 1 readable (or hung up),
  *  0 nothing came, -1 poll failed. */
 int  mbfb_fd_wait_input(int fd, int64_t wait_us);
 /** write() all of buf on the bus fd (non-blocking fd; waits with poll). */
 int  mbfb_fd_write_all(struct mbfb_bus *bus, const uint8_t *buf, int len);
-/** Map an errno from libmodbus or read/write to -MBFB_E_*. */
-int  mbfb_errno_to_err(int err);
 
 /* ---- request slots ----------------------------------------------------------
  * state word = (generation << 4) | MBFB_SLOT_*; changed only with __atomic CAS.
@@ -142,58 +169,142 @@ typedef struct mbfb_slot {
     uint32_t state;         /* atomic: (gen << 4) | MBFB_SLOT_*                   */
     uint32_t seq;           /* post order, FIFO among queued requests             */
     int dev, fc, addr, count;
+    int policy;             /* MBFB_WRITE_* for writes                           */
     int result;             /* MBFB_OK or positive MBFB_E_* (written by worker)  */
     int nvals;              /* registers read                                    */
     uint16_t values[MBFB_MAX_READ]; /* write values in, read values out          */
 } mbfb_slot_t;
 
 /* ---- devices ------------------------------------------------------------- */
+/** Reply shape of a failed attempt whose reply may still come (README "Late replies"). */
+typedef struct mbfb_shape {
+    int fc;                  /* function code of the request                      */
+    int bytes;               /* byte count of a read reply; for writes the echoed
+                                address/value or count (a write's reply is the same
+                                length for every write of that fc)                 */
+    int64_t t_us;            /* when that attempt was sent                         */
+} mbfb_shape_t;
+
+/** A read range known to be readable on the device (plan items, good reads). */
+typedef struct mbfb_range {
+    int fc, addr, count;
+} mbfb_range_t;
+
 typedef struct mbfb_dev {
     int bus, slave;          /* set once at mbfb_dev_open, before publication     */
     mbfb_diag_t diag;        /* each field written by the worker with __atomic     */
+    uint32_t diag_seq;       /* atomic: bumped after every diag change            */
     /* back-off: worker only */
     int fails;               /* consecutive failed transactions                   */
     int probe_ms;            /* current probe interval                            */
     int64_t next_probe_us;
+    /* resynchronisation: worker only */
+    int in_step;             /* 1: no reply of an earlier request can still come  */
+    int n_out;               /* outstanding shapes                                */
+    mbfb_shape_t out[MBFB_OUTSTANDING_MAX];
+    int n_known;             /* ranges that read well, most recent first          */
+    mbfb_range_t known[MBFB_KNOWN_READS];
+    /* refreshes: worker only */
+    int64_t last_refresh_us;
 } mbfb_dev_t;
 
+/* ---- plans ------------------------------------------------------------------
+ * Settings are written by the scan (mbfb_plan_set) field by field with __atomic
+ * stores inside a sequence lock (cfg_seq odd while writing) and copied by the worker
+ * at the start of a refresh. Snapshots go the other way in a double buffer: the
+ * worker fills buf[seq & 1], each buffer carries the sequence number it holds
+ * (0 while being written), so the scan copies without a lock and retries a torn copy.
+ * Words are kept as 64-bit atoms: 32 loads copy a whole snapshot. */
+#define MBFB_SNAP_ATOMS ((MBFB_PLAN_MAX_WORDS + 3) / 4)
+
+typedef struct mbfb_snapbuf {
+    uint32_t seq;            /* atomic: refresh number held, 0 while written       */
+    int32_t result;
+    uint32_t gen, read_mask;
+    uint64_t atoms[MBFB_SNAP_ATOMS]; /* words, 4 per atom, little-endian order in
+                                        memory as mbfb_snap_t.words                 */
+} mbfb_snapbuf_t;
+
+typedef struct mbfb_plan {
+    int dev, bus;            /* set once at mbfb_plan_open                         */
+    /* settings (scan writes, worker reads; all atomic) */
+    uint32_t cfg_seq;        /* sequence lock: odd while plan_set writes          */
+    int running;             /* 1 after mbfb_plan_set, 0 after mbfb_plan_stop      */
+    int n, period_ms, slow_ms;
+    mbfb_plan_item_t items[MBFB_PLAN_MAX_ITEMS];
+    uint32_t inval_gen;      /* atomic: mbfb_plan_invalidate count                */
+    /* worker only */
+    uint32_t cfg_seen;       /* cfg_seq of the settings of the last refresh        */
+    int64_t last_start_us, next_slow_us;
+    uint32_t slow_gen;       /* inval_gen when the slow tier was last read         */
+    int slow_done;           /* the slow tier was read since the last plan_set     */
+    uint32_t seq;            /* refreshes published                               */
+    /* snapshots */
+    uint32_t pub;            /* atomic: number of the newest published refresh      */
+    mbfb_snapbuf_t buf[2];
+} mbfb_plan_t;
+
 /* ---- bus ----------------------------------------------------------------- */
+#define MBFB_BUSY_BUCKETS 10  /* busy_permille: 10 buckets of 100 ms */
+
 typedef struct mbfb_bus {
     char *port;              /* as given (tcp://host:port or a path)              */
+    char *key;               /* identity of the port (README "Port identity")     */
     mbfb_bus_config_t cfg;   /* normalised copy; cfg.port points to `port`        */
     const mbfb_backend_t *be;
+    void *be_priv;           /* the backend's state (libmodbus context)           */
     mbfb_timing_t timing;
-    modbus_t *ctx;           /* libmodbus context while the port is open          */
-    int fd;                  /* its file descriptor, -1 when closed               */
+    int fd;                  /* the port's file descriptor, -1 when closed        */
     int64_t quiet_from_us;   /* the line is silent from this time on              */
-    int timeout_us;          /* response timeout of the current transaction       */
-    int settle_us;           /* silence owed before the next request: the response
-                                timeout of a transaction that had a failed attempt
-                                (its late reply may still come), else 0           */
+    int timeout_us;          /* response timeout of the current attempt           */
+    int settle_us;           /* silence owed before the next attempt: the response
+                                timeout of a failed attempt (its late reply may still
+                                come), else 0                                      */
     uint32_t stray_bytes;    /* atomic: bytes discarded outside replies (diag)     */
+    uint32_t transactions;   /* atomic: attempts put on the wire                   */
+    uint32_t busy_epoch[MBFB_BUSY_BUCKETS]; /* atomic: 100 ms period of the bucket */
+    uint32_t busy_us[MBFB_BUSY_BUCKETS];    /* atomic: line busy in that period   */
     int stop;                /* atomic: worker exits                              */
     uint32_t post_seq;       /* atomic: next sequence number                      */
-    sem_t wake;              /* posted by mbfb_post, waited on by the worker      */
+    sem_t wake;              /* posted by mbfb_post / mbfb_plan_set               */
     pthread_t worker;
     int index;
+    int n_plans;             /* atomic: plans[0..n_plans) published               */
+    mbfb_plan_t *plans[MBFB_PLANS_PER_BUS]; /* atomic pointers                   */
+    int rr;                  /* worker: round robin position among plans          */
     mbfb_slot_t slots[MBFB_MAX_SLOTS];
 } mbfb_bus_t;
 
 /* registry (mbfb_bus.c); entries are published with release stores */
 extern mbfb_bus_t *mbfb_buses[MBFB_MAX_BUSES];
 extern mbfb_dev_t *mbfb_devs[MBFB_MAX_DEVICES];
+extern mbfb_plan_t *mbfb_plans[MBFB_MAX_PLANS];
+/** The registry mutex of the setup calls (never taken by the scan or the worker). */
+extern pthread_mutex_t mbfb_registry_lock;
 
 /* worker side of the slots (mbfb_req.c) */
 mbfb_slot_t *mbfb_slot_next(mbfb_bus_t *bus);          /* QUEUED -> ACTIVE, FIFO */
 void mbfb_slot_finish(mbfb_slot_t *s, int result);     /* ACTIVE -> DONE/FAILED  */
 void mbfb_slot_fail_queued(mbfb_bus_t *bus, int result);
 
+/* worker side of the plans (mbfb_plan.c) */
+/** Copy a plan's settings (sequence lock); 0 if it is not running. */
+int  mbfb_plan_read_cfg(mbfb_plan_t *p, mbfb_plan_item_t *items, int *n, int *period_ms,
+                        int *slow_ms, uint32_t *cfg_seq);
+/** Publish refresh number p->seq + 1 (words: the items' words in order). */
+void mbfb_plan_publish(mbfb_plan_t *p, int result, uint32_t gen, uint32_t read_mask,
+                       const uint16_t *words, int nwords);
+
 /* the worker (mbfb_worker.c) */
 void *mbfb_worker_main(void *arg);
 
-/* diag helpers (worker writes, scan reads, all with __atomic) */
-#define MBFB_DIAG_INC(d, f) __atomic_fetch_add(&(d)->diag.f, 1u, __ATOMIC_RELAXED)
-#define MBFB_DIAG_SET(d, f, v) __atomic_store_n(&(d)->diag.f, (v), __ATOMIC_RELAXED)
+/* diag helpers (worker writes, scan reads, all with __atomic); every change bumps
+ * the device's diag_seq (release) after the field */
+#define MBFB_DIAG_TOUCH(d) __atomic_fetch_add(&(d)->diag_seq, 1u, __ATOMIC_RELEASE)
+#define MBFB_DIAG_INC(d, f) \
+    (__atomic_fetch_add(&(d)->diag.f, 1u, __ATOMIC_RELAXED), MBFB_DIAG_TOUCH(d))
+#define MBFB_DIAG_SET(d, f, v) \
+    (__atomic_store_n(&(d)->diag.f, (v), __ATOMIC_RELAXED), MBFB_DIAG_TOUCH(d))
 /* bytes heard outside any reply and discarded (bus-wide diag.stray_bytes) */
 #define MBFB_STRAY_ADD(b, n) \
     __atomic_fetch_add(&(b)->stray_bytes, (uint32_t)(n), __ATOMIC_RELAXED)

@@ -1,6 +1,6 @@
 /*
- * mbfb_req.c - the scan-side calls (post, poll, take, cancel, diag) and the worker's
- * side of the request slots.
+ * mbfb_req.c - the scan-side calls (post, post_write, poll, take, cancel, diag) and the
+ * worker's side of the request slots.
  *
  * Lock-free: every slot has one state word, (generation << 4) | MBFB_SLOT_*, changed
  * only by __atomic compare-and-swap (GCC/Clang builtins: the same code compiles as C
@@ -22,6 +22,7 @@
 #define GEN(w) ((w) >> 4)
 #define WORD(gen, st) (((gen) << 4) | (st))
 
+/* Request handle of a slot. */
 static int make_handle(int bus, int slot, uint32_t gen)
 {
     return 1 + (int)((gen << 10) | (uint32_t)(bus << 6) | (uint32_t)slot);
@@ -45,6 +46,13 @@ static mbfb_slot_t *slot_of(int req, uint32_t *gen)
 
 int mbfb_post(int dev, int fc, int addr, int count, const uint16_t *values)
 {
+    return mbfb_post_write(dev, fc, addr, count, values, MBFB_WRITE_IDEMPOTENT);
+}
+
+/* Claim a free slot by CAS, fill it, queue it and wake the worker. Reads go through
+ * here too (policy unused). */
+int mbfb_post_write(int dev, int fc, int addr, int count, const uint16_t *values, int policy)
+{
     mbfb_dev_t *d;
     mbfb_bus_t *bus;
     mbfb_slot_t *s = NULL;
@@ -54,7 +62,8 @@ int mbfb_post(int dev, int fc, int addr, int count, const uint16_t *values)
     if (dev < 0 || dev >= MBFB_MAX_DEVICES ||
         (d = __atomic_load_n(&mbfb_devs[dev], __ATOMIC_ACQUIRE)) == NULL)
         return -MBFB_E_BADHANDLE;
-    if (mbfb_check_args(d->slave, fc, addr, count, values) != MBFB_OK)
+    if (mbfb_check_args(d->slave, fc, addr, count, values) != MBFB_OK ||
+        (policy != MBFB_WRITE_IDEMPOTENT && policy != MBFB_WRITE_ONCE))
         return -MBFB_E_INVAL;
     bus = __atomic_load_n(&mbfb_buses[d->bus], __ATOMIC_ACQUIRE);
     for (i = 0; i < MBFB_MAX_SLOTS; i++) {
@@ -73,6 +82,7 @@ int mbfb_post(int dev, int fc, int addr, int count, const uint16_t *values)
     s->fc = fc;
     s->addr = addr;
     s->count = count;
+    s->policy = policy;
     s->result = 0;
     s->nvals = 0;
     if (fc == 6 || fc == 16)
@@ -84,6 +94,7 @@ int mbfb_post(int dev, int fc, int addr, int count, const uint16_t *values)
     return make_handle(d->bus, i, gen);
 }
 
+/* State of a request from its slot's state word. */
 int mbfb_poll(int req)
 {
     uint32_t gen, w;
@@ -100,6 +111,7 @@ int mbfb_poll(int req)
     }
 }
 
+/* Copy out a finished request and free its slot (CAS: one taker wins). */
 int mbfb_take(int req, uint16_t *values, int max)
 {
     uint32_t gen, w;
@@ -121,6 +133,7 @@ int mbfb_take(int req, uint16_t *values, int max)
     return CAS(&s->state, w, WORD(gen, MBFB_SLOT_FREE)) ? rc : -MBFB_E_BADHANDLE;
 }
 
+/* Free a queued/finished slot, or mark one on the wire for the worker to free. */
 int mbfb_cancel(int req)
 {
     uint32_t gen, w, next;
@@ -149,6 +162,15 @@ int mbfb_cancel(int req)
     }
 }
 
+/* The device of a handle, or NULL. */
+static mbfb_dev_t *dev_of(int dev)
+{
+    if (dev < 0 || dev >= MBFB_MAX_DEVICES)
+        return NULL;
+    return __atomic_load_n(&mbfb_devs[dev], __ATOMIC_ACQUIRE);
+}
+
+/* Copy the diagnostics field by field (every field is written atomically). */
 int mbfb_dev_diag(int dev, mbfb_diag_t *out)
 {
     mbfb_dev_t *d;
@@ -170,8 +192,52 @@ int mbfb_dev_diag(int dev, mbfb_diag_t *out)
     return 0;
 }
 
+/* The device's diag_seq plus its bus's stray-byte count (shown in every device's
+ * diagnostics): two atomic loads, no system call. 0 for an unknown handle. */
+uint32_t mbfb_dev_diag_seq(int dev)
+{
+    mbfb_dev_t *d = dev_of(dev);
+    mbfb_bus_t *b;
+
+    if (d == NULL)
+        return 0;
+    b = __atomic_load_n(&mbfb_buses[d->bus], __ATOMIC_ACQUIRE);
+    return __atomic_load_n(&d->diag_seq, __ATOMIC_ACQUIRE) +
+           (b ? __atomic_load_n(&b->stray_bytes, __ATOMIC_RELAXED) : 0u);
+}
+
+/* Bus diagnostics; busy_permille sums the 100 ms buckets of the last second. */
+int mbfb_bus_diag(int dev, mbfb_bus_diag_t *out)
+{
+    mbfb_dev_t *d = dev_of(dev);
+    mbfb_bus_t *b;
+    uint32_t now, busy = 0, plans = 0;
+    int n;
+
+    if (out == NULL || d == NULL ||
+        (b = __atomic_load_n(&mbfb_buses[d->bus], __ATOMIC_ACQUIRE)) == NULL)
+        return -MBFB_E_BADHANDLE;
+    now = (uint32_t)(mbfb_now_us() / 100000);
+    for (int i = 0; i < MBFB_BUSY_BUCKETS; i++) {
+        uint32_t e = __atomic_load_n(&b->busy_epoch[i], __ATOMIC_ACQUIRE);
+        if (now - e < MBFB_BUSY_BUCKETS)
+            busy += __atomic_load_n(&b->busy_us[i], __ATOMIC_RELAXED);
+    }
+    n = __atomic_load_n(&b->n_plans, __ATOMIC_ACQUIRE);
+    for (int i = 0; i < n; i++) {
+        mbfb_plan_t *p = __atomic_load_n(&b->plans[i], __ATOMIC_ACQUIRE);
+        plans += p != NULL && __atomic_load_n(&p->running, __ATOMIC_RELAXED);
+    }
+    out->transactions = __atomic_load_n(&b->transactions, __ATOMIC_RELAXED);
+    out->busy_permille = busy / 1000 > 1000 ? 1000 : busy / 1000;
+    out->plans = plans;
+    out->stray_bytes = __atomic_load_n(&b->stray_bytes, __ATOMIC_RELAXED);
+    return 0;
+}
+
 /* ---- worker side ---------------------------------------------------------- */
 
+/* The oldest queued request, made ACTIVE; NULL if none. */
 mbfb_slot_t *mbfb_slot_next(mbfb_bus_t *bus)
 {
     for (;;) {
@@ -196,6 +262,7 @@ mbfb_slot_t *mbfb_slot_next(mbfb_bus_t *bus)
     }
 }
 
+/* ACTIVE -> DONE/FAILED, or CANCELLED -> FREE. */
 void mbfb_slot_finish(mbfb_slot_t *s, int result)
 {
     uint32_t w = LOAD(&s->state);
@@ -209,6 +276,7 @@ void mbfb_slot_finish(mbfb_slot_t *s, int result)
     }
 }
 
+/* End every queued request with `result` (port lost). */
 void mbfb_slot_fail_queued(mbfb_bus_t *bus, int result)
 {
     mbfb_slot_t *s;

@@ -1,37 +1,38 @@
 /*
  * mbfb_worker.c - the one thread per bus that does all its I/O.
  *
- * Per request: back-off check, (re)open the port, then up to 1 + retries attempts:
- *   wait until the line is silent (every byte heard is read, discarded and counted,
- *   and restarts the silence), send, receive, validate.
- * Late replies (RTU has no transaction id):
- *   - a retry follows a failed attempt after the usual gap only. A late reply to an
- *     earlier attempt that arrives while the retry waits is taken: it answers the
- *     same question (same slave, function, registers; a write's same value).
- *   - after a transaction with a failed attempt, the NEXT request waits until the
- *     line has been silent for a whole response timeout (bus->settle_us), so a late
- *     reply still on its way is heard and discarded, not taken as that answer.
- *   - TCP reconnects after a failed attempt instead.
- * Write retries re-send the same absolute value, so a write the device applied but
- * whose reply was lost is applied again with the same effect (idempotent).
+ * Work, in this order: posted requests (writes, generic reads) in posting order, then
+ * the refresh of the plan due first (ties: round robin); a posted request also goes
+ * before each read of a refresh. Otherwise the worker sleeps until the next due time
+ * or a post (sem_clockwait on CLOCK_MONOTONIC).
+ *
+ * One request (a posted one or a plan read) = up to 1 + retries failed attempts:
+ *   wait until the line is silent (the gap, or a whole response timeout after a failed
+ *   attempt: the settle), send, receive, validate.
+ * In step (README "Late replies"): RTU has no transaction id. After a failed attempt
+ * the device is out of step and the reply shape of that attempt is outstanding. While
+ * out of step only resync reads go to the device: a read whose reply shape differs from
+ * every outstanding one. A good reply to it brings the device back in step (it serves
+ * requests in order: nothing older can follow) and clears the outstanding set.
+ * Confirmed writes (README "Confirmed writes"): an echo while in step is DONE; an
+ * exception is a definite "not applied"; any other failure leaves the outcome unknown
+ * until a read-back (FC03 of the written registers, in step) shows it: equal -> DONE;
+ * differs -> MBFB_WRITE_IDEMPOTENT sends it again, MBFB_WRITE_ONCE ends UNCONFIRMED.
  */
+#ifndef _GNU_SOURCE
+#define _GNU_SOURCE /* sem_clockwait */
+#endif
 #include <errno.h>
+#include <string.h>
 
 #include "mbfb_internal.h"
 
+/* ---- small helpers -------------------------------------------------------------- */
+
+/* Last error of a device (diag.last_error). */
 static void set_error(mbfb_dev_t *dev, int err)
 {
     MBFB_DIAG_SET(dev, last_error, (int32_t)err);
-}
-
-/* Port lost: close it, fail the request and everything queued behind it. The next
- * request reopens the port. */
-static void port_lost(mbfb_bus_t *bus, mbfb_dev_t *dev, mbfb_slot_t *s)
-{
-    bus->be->close(bus);
-    set_error(dev, MBFB_E_PORTLOST);
-    mbfb_slot_finish(s, MBFB_E_PORTLOST);
-    mbfb_slot_fail_queued(bus, MBFB_E_PORTLOST);
 }
 
 /* Count a failed attempt in the device diagnostics. */
@@ -41,81 +42,335 @@ static void count_failure(mbfb_dev_t *dev, int err)
         MBFB_DIAG_INC(dev, timeouts);
     else if (err == MBFB_E_CRC)
         MBFB_DIAG_INC(dev, crc_errors);
-    else
+    else if (err >= MBFB_E_EXCEPTION_BASE) {
+        MBFB_DIAG_INC(dev, exceptions);
+        MBFB_DIAG_SET(dev, last_exception, (uint32_t)(err - MBFB_E_EXCEPTION_BASE));
+    } else
         MBFB_DIAG_INC(dev, bad_replies);
 }
 
-/* Wait for a silent line before an attempt: the gap, or after a transaction that had
- * a failed attempt, a whole response timeout (first attempt only). 0 or -PORTLOST. */
-static int wait_quiet(mbfb_bus_t *bus, int first)
+/* Account `us` of line time in the 100 ms bucket of now (busy_permille). */
+static void busy_add(mbfb_bus_t *bus, int64_t now, int64_t us)
+{
+    uint32_t epoch = (uint32_t)(now / 100000);
+    int i = (int)(epoch % MBFB_BUSY_BUCKETS);
+    if (us <= 0)
+        return;
+    if (__atomic_load_n(&bus->busy_epoch[i], __ATOMIC_RELAXED) != epoch) {
+        __atomic_store_n(&bus->busy_us[i], 0u, __ATOMIC_RELAXED);
+        __atomic_store_n(&bus->busy_epoch[i], epoch, __ATOMIC_RELEASE);
+    }
+    __atomic_fetch_add(&bus->busy_us[i], (uint32_t)us, __ATOMIC_RELAXED);
+}
+
+/* Wait for a silent line before an attempt: the gap, or the settle owed after a
+ * failed attempt. 0 or -PORTLOST. */
+static int wait_quiet(mbfb_bus_t *bus)
 {
     int silence = bus->timing.gap_us, n;
 
-    if (first && bus->settle_us > silence)
+    if (bus->settle_us > silence)
         silence = bus->settle_us;
     n = bus->be->quiet(bus, silence, silence + MBFB_QUIET_LIMIT_T * bus->timeout_us);
     if (n < 0)
         return n;
+    bus->settle_us = 0;
     MBFB_STRAY_ADD(bus, n);
     return 0;
 }
 
-/* One transaction with its retries. Returns MBFB_OK, a positive MBFB_E_* code, or
- * -MBFB_E_PORTLOST. *failed counts the attempts that got no valid answer. */
-static int transact(mbfb_bus_t *bus, mbfb_dev_t *dev, mbfb_slot_t *s, const uint8_t *req,
-                    int len, int attempts, int *failed)
+/* ---- one attempt ---------------------------------------------------------------- */
+
+/* One exchange on the wire: fc 3/4 (values read into out), 6/16 (vals written).
+ * Returns MBFB_OK, a positive MBFB_E_* (failure or 128 + exception), or
+ * -MBFB_E_PORTLOST. A failure owes the line a settle and, on TCP, reconnects. */
+static int attempt(mbfb_bus_t *bus, mbfb_dev_t *dev, int fc, int addr, int count,
+                   const uint16_t *vals, uint16_t *out)
 {
-    uint8_t rsp[MBFB_FRAME_MAX];
-    int err = MBFB_E_TIMEOUT;
+    uint8_t req[MBFB_FRAME_MAX], rsp[MBFB_FRAME_MAX];
+    int len = mbfb_build_request(req, dev->slave, fc, addr, count, vals), rc, err;
+    int64_t t0;
 
-    for (int a = 0; a < attempts; a++) {
-        int64_t t0;
-        int rc;
-
-        if (a > 0)
-            MBFB_DIAG_INC(dev, retries);
-        if (wait_quiet(bus, a == 0) < 0)
-            return -MBFB_E_PORTLOST;
-        t0 = mbfb_now_us();
-        if (bus->be->send(bus, req, len) < 0)
-            return -MBFB_E_PORTLOST;
-        if (req[0] == 0) { /* broadcast: no reply; let the slaves process it */
-            bus->quiet_from_us = t0 + (int64_t)mbfb_wire_len(bus->cfg.framing, len) *
-                                          bus->timing.char_us + MBFB_TURNAROUND_US;
-            return MBFB_OK;
-        }
-        rc = bus->be->recv(bus, req, rsp, (int)sizeof rsp, bus->timeout_us);
-        bus->quiet_from_us = mbfb_now_us();
-        if (rc == -MBFB_E_PORTLOST)
-            return rc;
-        err = rc < 0 ? -rc : mbfb_check_reply(req, rsp, rc);
-        if (err == MBFB_OK) {
-            MBFB_DIAG_INC(dev, good);
-            MBFB_DIAG_SET(dev, last_rtt_us, (uint32_t)(bus->quiet_from_us - t0));
-            s->nvals = (s->fc == 3 || s->fc == 4) ? s->count : 0;
-            for (int i = 0; i < s->nvals; i++)
-                s->values[i] = (uint16_t)(rsp[3 + 2 * i] << 8 | rsp[4 + 2 * i]);
-            return MBFB_OK;
-        }
-        if (err >= MBFB_E_EXCEPTION_BASE) { /* a valid answer: no retry */
-            MBFB_DIAG_INC(dev, exceptions);
-            MBFB_DIAG_SET(dev, last_exception, (uint32_t)(err - MBFB_E_EXCEPTION_BASE));
-            return err;
-        }
-        count_failure(dev, err);
-        ++*failed;
-        if (bus->be->resync != NULL)
-            bus->be->resync(bus);
-        if (bus->ctx == NULL)
+    bus->timeout_us = bus->cfg.response_timeout_ms > 0
+                          ? bus->cfg.response_timeout_ms * 1000
+                          : mbfb_response_timeout_us(&bus->timing, bus->cfg.framing, len,
+                                                     mbfb_reply_len(req));
+    if (wait_quiet(bus) < 0)
+        return -MBFB_E_PORTLOST;
+    t0 = mbfb_now_us();
+    if (bus->be->send(bus, req, len) < 0)
+        return -MBFB_E_PORTLOST;
+    __atomic_fetch_add(&bus->transactions, 1u, __ATOMIC_RELAXED);
+    if (req[0] == 0) { /* broadcast: no reply; let the slaves process it */
+        bus->quiet_from_us = t0 + (int64_t)mbfb_wire_len(bus->cfg.framing, len) *
+                                      bus->timing.char_us + MBFB_TURNAROUND_US;
+        busy_add(bus, t0, bus->quiet_from_us - t0 + bus->timing.gap_us);
+        return MBFB_OK;
+    }
+    rc = bus->be->recv(bus, req, rsp, (int)sizeof rsp, bus->timeout_us);
+    bus->quiet_from_us = mbfb_now_us();
+    busy_add(bus, bus->quiet_from_us, bus->quiet_from_us - t0 + bus->timing.gap_us);
+    if (rc == -MBFB_E_PORTLOST)
+        return rc;
+    err = rc < 0 ? -rc : mbfb_check_reply(req, rsp, rc);
+    if (err == MBFB_OK) {
+        MBFB_DIAG_INC(dev, good);
+        MBFB_DIAG_SET(dev, last_rtt_us, (uint32_t)(bus->quiet_from_us - t0));
+        if ((fc == 3 || fc == 4) && out != NULL)
+            for (int i = 0; i < count; i++)
+                out[i] = (uint16_t)(rsp[3 + 2 * i] << 8 | rsp[4 + 2 * i]);
+        return MBFB_OK;
+    }
+    count_failure(dev, err);
+    if (err >= MBFB_E_EXCEPTION_BASE)
+        return err;
+    bus->settle_us = bus->timeout_us; /* its reply may still come: let it pass */
+    if (!bus->be->needs_resync) {
+        bus->be->reconnect(bus);
+        if (bus->fd < 0)
             return -MBFB_E_PORTLOST; /* TCP reconnect failed */
     }
     return err;
 }
 
-/* Back-off bookkeeping after a transaction that reached the device's turn. */
-static void update_backoff(mbfb_dev_t *dev, int result)
+/* ---- resynchronisation ------------------------------------------------------------ */
+
+/* Drop outstanding shapes older than MBFB_LATE_MAX_MS. */
+static void expire_shapes(mbfb_dev_t *dev, int64_t now)
 {
-    if (result == MBFB_OK || result >= MBFB_E_EXCEPTION_BASE) { /* it answered */
+    int k = 0;
+    for (int i = 0; i < dev->n_out; i++)
+        if (now - dev->out[i].t_us < (int64_t)MBFB_LATE_MAX_MS * 1000)
+            dev->out[k++] = dev->out[i];
+    dev->n_out = k;
+}
+
+/* A read of `count` registers with fc: is its reply shape outstanding? */
+static int shape_taken(const mbfb_dev_t *dev, int fc, int count)
+{
+    for (int i = 0; i < dev->n_out; i++)
+        if (dev->out[i].fc == fc && dev->out[i].bytes == 2 * count)
+            return 1;
+    return 0;
+}
+
+/* After a failed attempt: out of step (serial lines); a read's reply shape becomes
+ * outstanding. Only reads are sent out of step, so a write's echo needs no entry. */
+static void out_of_step(mbfb_bus_t *bus, mbfb_dev_t *dev, int fc, int count, int64_t t)
+{
+    if (!bus->be->needs_resync)
+        return; /* TCP: the new connection is in step */
+    dev->in_step = 0;
+    if ((fc == 3 || fc == 4) && !shape_taken(dev, fc, count) &&
+        dev->n_out < MBFB_OUTSTANDING_MAX) {
+        dev->out[dev->n_out].fc = fc;
+        dev->out[dev->n_out].bytes = 2 * count;
+        dev->out[dev->n_out].t_us = t;
+        dev->n_out++;
+    }
+}
+
+/* A good reply to a resync read: in step, nothing can be late any more. */
+static void in_step(mbfb_dev_t *dev)
+{
+    dev->in_step = 1;
+    dev->n_out = 0;
+}
+
+/* Remember a range that read well (most recent first). */
+static void remember_read(mbfb_dev_t *dev, int fc, int addr, int count)
+{
+    int i, n = dev->n_known;
+    for (i = 0; i < n; i++)
+        if (dev->known[i].fc == fc && dev->known[i].addr == addr &&
+            dev->known[i].count == count)
+            break;
+    if (i == n && n < MBFB_KNOWN_READS)
+        dev->n_known = ++n;
+    if (i == n)
+        i = n - 1;
+    memmove(&dev->known[1], &dev->known[0], (size_t)i * sizeof dev->known[0]);
+    dev->known[0].fc = fc;
+    dev->known[0].addr = addr;
+    dev->known[0].count = count;
+}
+
+/* Is a reply with exception function fc|0x80 possible from an outstanding request? */
+static int exception_taken(const mbfb_dev_t *dev, int fc)
+{
+    for (int i = 0; i < dev->n_out; i++)
+        if (dev->out[i].fc == fc)
+            return 1;
+    return 0;
+}
+
+/* Consider a readable window for the shortest free resync read. */
+static void consider(const mbfb_dev_t *dev, int fc, int addr, int count, mbfb_range_t *best)
+{
+    for (int k = 1; k <= count && (best->count == 0 || k < best->count); k++)
+        if (!shape_taken(dev, fc, k)) {
+            best->fc = fc;
+            best->addr = addr;
+            best->count = k;
+            return;
+        }
+}
+
+/* Choose the resync read for a device: the shortest read, inside a window known to be
+ * readable (the request itself if a read, the written range of a write, the device's
+ * plan items, ranges that read well), whose reply shape is not outstanding. When every
+ * such shape is taken: one register with the other read function (3 <-> 4) at the
+ * request's address, if no request of that function is outstanding: then any answer,
+ * data or exception, can only be the answer to it. With `readback` (a write of unknown
+ * outcome) the written range itself is preferred: its reply is the read-back too.
+ * Returns 1 with *r, or 0 when no shape is usable (or the outstanding set is full). */
+static int pick_resync(mbfb_bus_t *bus, int devidx, int fc, int addr, int count,
+                       int readback, mbfb_range_t *r)
+{
+    mbfb_dev_t *dev = mbfb_devs[devidx];
+    int write = fc == 6 || fc == 16, n, rfc = write ? 3 : fc;
+
+    expire_shapes(dev, mbfb_now_us());
+    if (dev->n_out >= MBFB_OUTSTANDING_MAX)
+        return 0;
+    if (readback && !shape_taken(dev, 3, count)) {
+        r->fc = 3, r->addr = addr, r->count = count;
+        return 1;
+    }
+    r->count = 0;
+    consider(dev, rfc, addr, count, r);
+    n = __atomic_load_n(&bus->n_plans, __ATOMIC_ACQUIRE);
+    for (int i = 0; i < n; i++) {
+        mbfb_plan_t *p = __atomic_load_n(&bus->plans[i], __ATOMIC_ACQUIRE);
+        mbfb_plan_item_t items[MBFB_PLAN_MAX_ITEMS];
+        int ni, per, slow;
+        uint32_t cs;
+        if (p == NULL || p->dev != devidx)
+            continue;
+        mbfb_plan_read_cfg(p, items, &ni, &per, &slow, &cs);
+        for (int k = 0; k < ni; k++)
+            consider(dev, items[k].fc, items[k].addr, items[k].count, r);
+    }
+    for (int i = 0; i < dev->n_known; i++)
+        consider(dev, dev->known[i].fc, dev->known[i].addr, dev->known[i].count, r);
+    if (r->count == 0 && !exception_taken(dev, 7 - rfc)) {
+        r->fc = 7 - rfc; /* 3 <-> 4 */
+        r->addr = addr;
+        r->count = 1;
+    }
+    return r->count > 0;
+}
+
+/* ---- one request with its retries, resyncs and read-backs ------------------------ */
+
+typedef struct op {
+    int devidx, fc, addr, count, policy;
+    const uint16_t *vals;     /* writes */
+    uint16_t *out;            /* reads: count registers */
+    int budget;               /* failed attempts allowed                               */
+    int answered;             /* out: a valid reply (or exception) came from the device */
+    int sent;                 /* out: attempts put on the wire                         */
+} op_t;
+
+/* Count an attempt beyond the first of this request. */
+static void next_attempt(mbfb_dev_t *dev, op_t *op)
+{
+    if (op->sent++ > 0)
+        MBFB_DIAG_INC(dev, retries);
+}
+
+/* Run one request (see the file comment). Returns MBFB_OK, a positive MBFB_E_*, or
+ * -MBFB_E_PORTLOST. MBFB_E_OFFLINE: no resync read was possible, nothing was sent. */
+static int run_op(mbfb_bus_t *bus, op_t *op)
+{
+    mbfb_dev_t *dev = mbfb_devs[op->devidx];
+    int write = op->fc == 6 || op->fc == 16;
+    int failures = 0, err = MBFB_E_TIMEOUT, unknown = 0, rc;
+    uint16_t rb[MBFB_MAX_READ];
+    mbfb_range_t r;
+
+    for (;;) {
+        if (failures >= op->budget)
+            return unknown ? MBFB_E_UNCONFIRMED : err;
+        if (!dev->in_step) { /* only a resync read may go */
+            int merged, exc_proves;
+            if (!pick_resync(bus, op->devidx, op->fc, op->addr, op->count, unknown, &r))
+                return unknown ? MBFB_E_UNCONFIRMED : (op->sent ? err : MBFB_E_OFFLINE);
+            merged = unknown && r.fc == 3 && r.addr == op->addr && r.count == op->count;
+            exc_proves = !exception_taken(dev, r.fc); /* no earlier exception can come */
+            next_attempt(dev, op);
+            MBFB_DIAG_INC(dev, resyncs);
+            rc = attempt(bus, dev, r.fc, r.addr, r.count, NULL, rb);
+            if (rc == -MBFB_E_PORTLOST)
+                return rc;
+            if (rc >= MBFB_E_EXCEPTION_BASE && exc_proves) {
+                op->answered = 1;
+                in_step(dev);
+                if (merged)
+                    return MBFB_E_UNCONFIRMED; /* the read-back is refused */
+                continue;
+            }
+            if (rc != MBFB_OK) { /* this exception may be a late one: still out of step */
+                op->answered |= rc >= MBFB_E_EXCEPTION_BASE;
+                out_of_step(bus, dev, r.fc, r.count, mbfb_now_us());
+                failures++;
+                err = rc;
+                continue;
+            }
+            op->answered = 1;
+            in_step(dev);
+            remember_read(dev, r.fc, r.addr, r.count);
+            if (!merged)
+                continue;
+        } else if (unknown) { /* in step: read the written registers back */
+            next_attempt(dev, op);
+            rc = attempt(bus, dev, 3, op->addr, op->count, NULL, rb);
+            if (rc == -MBFB_E_PORTLOST)
+                return rc;
+            if (rc >= MBFB_E_EXCEPTION_BASE) {
+                op->answered = 1;
+                return MBFB_E_UNCONFIRMED; /* no read-back possible */
+            }
+            if (rc != MBFB_OK) {
+                out_of_step(bus, dev, 3, op->count, mbfb_now_us());
+                failures++;
+                err = rc;
+                continue;
+            }
+            op->answered = 1;
+        }
+        if (unknown) { /* rb holds the read-back */
+            if (memcmp(rb, op->vals, (size_t)op->count * sizeof rb[0]) == 0)
+                return MBFB_OK; /* applied (once) */
+            if (op->policy == MBFB_WRITE_ONCE)
+                return MBFB_E_UNCONFIRMED; /* not applied: never sent twice */
+            unknown = 0;                   /* not applied: send it again */
+            if (failures >= op->budget)
+                return err;
+        }
+        next_attempt(dev, op);
+        rc = attempt(bus, dev, op->fc, op->addr, op->count, op->vals, op->out);
+        if (rc == -MBFB_E_PORTLOST)
+            return rc;
+        if (rc == MBFB_OK || rc >= MBFB_E_EXCEPTION_BASE) {
+            op->answered = 1;
+            if (rc == MBFB_OK && !write && dev->slave != 0)
+                remember_read(dev, op->fc, op->addr, op->count);
+            return rc;
+        }
+        out_of_step(bus, dev, op->fc, op->count, mbfb_now_us());
+        failures++;
+        err = rc;
+        unknown = write && dev->slave != 0;
+    }
+}
+
+/* ---- back-off ---------------------------------------------------------------------- */
+
+/* Back-off bookkeeping after a request that put something on the wire. */
+static void update_backoff(mbfb_dev_t *dev, int answered)
+{
+    if (answered) {
         dev->fails = 0;
         dev->probe_ms = 0;
         MBFB_DIAG_SET(dev, offline, 0u);
@@ -133,38 +388,226 @@ static void update_backoff(mbfb_dev_t *dev, int result)
     }
 }
 
-static void run_request(mbfb_bus_t *bus, mbfb_slot_t *s)
+/* Port lost: close it and end everything queued. The next request reopens it. */
+static void port_lost(mbfb_bus_t *bus, mbfb_dev_t *dev)
 {
-    mbfb_dev_t *dev = mbfb_devs[s->dev];
-    uint8_t req[MBFB_FRAME_MAX];
-    int len, rc, failed = 0, offline = dev->probe_ms > 0;
+    bus->be->close(bus);
+    set_error(dev, MBFB_E_PORTLOST);
+    mbfb_slot_fail_queued(bus, MBFB_E_PORTLOST);
+}
+
+/* Run one request of a device: back-off, port, attempts. Returns its result. */
+static int device_request(mbfb_bus_t *bus, op_t *op)
+{
+    mbfb_dev_t *dev = mbfb_devs[op->devidx];
+    int offline = dev->probe_ms > 0, rc;
 
     if (offline && mbfb_now_us() < dev->next_probe_us) { /* back-off: no bus time */
         set_error(dev, MBFB_E_OFFLINE);
-        mbfb_slot_finish(s, MBFB_E_OFFLINE);
-        return;
+        return MBFB_E_OFFLINE;
     }
-    if (bus->ctx == NULL && bus->be->open(bus) < 0) {
+    if (bus->fd < 0 && bus->be->open(bus) < 0) {
         set_error(dev, MBFB_E_NOPORT);
-        mbfb_slot_finish(s, MBFB_E_NOPORT);
-        return;
+        return MBFB_E_NOPORT;
     }
-    len = mbfb_build_request(req, dev->slave, s->fc, s->addr, s->count, s->values);
-    bus->timeout_us = bus->cfg.response_timeout_ms > 0
-                          ? bus->cfg.response_timeout_ms * 1000
-                          : mbfb_response_timeout_us(&bus->timing, bus->cfg.framing, len,
-                                                     mbfb_reply_len(req));
+    if (!bus->be->needs_resync)
+        dev->in_step = 1;
     MBFB_DIAG_INC(dev, requests);
-    /* an offline device gets a single-attempt probe */
-    rc = transact(bus, dev, s, req, len, offline ? 1 : 1 + bus->cfg.retries, &failed);
-    bus->settle_us = failed > 0 ? bus->timeout_us : 0;
+    op->budget = offline ? 1 : 1 + bus->cfg.retries; /* an offline device: one probe */
+    op->answered = 0;
+    op->sent = 0;
+    rc = run_op(bus, op);
     if (rc == -MBFB_E_PORTLOST) {
-        port_lost(bus, dev, s);
+        port_lost(bus, dev);
+        return MBFB_E_PORTLOST;
+    }
+    if (op->sent > 0) {
+        update_backoff(dev, op->answered);
+    } else if (rc == MBFB_E_OFFLINE) { /* no resync shape usable: wait for the oldest */
+        int64_t t = dev->n_out > 0 ? dev->out[0].t_us : mbfb_now_us();
+        for (int i = 1; i < dev->n_out; i++)
+            t = dev->out[i].t_us < t ? dev->out[i].t_us : t;
+        if (dev->probe_ms <= 0)
+            dev->probe_ms = MBFB_PROBE_FIRST_MS;
+        dev->next_probe_us = t + (int64_t)MBFB_LATE_MAX_MS * 1000;
+        MBFB_DIAG_SET(dev, offline, 1u);
+    }
+    set_error(dev, rc);
+    return rc;
+}
+
+/* A posted request. */
+static void run_slot(mbfb_bus_t *bus, mbfb_slot_t *s)
+{
+    op_t op;
+    int rc;
+
+    memset(&op, 0, sizeof op);
+    op.devidx = s->dev;
+    op.fc = s->fc;
+    op.addr = s->addr;
+    op.count = s->count;
+    op.policy = s->policy;
+    op.vals = s->values;
+    op.out = s->values; /* reads: the slot's values are free for the result */
+    rc = device_request(bus, &op);
+    s->nvals = rc == MBFB_OK && (s->fc == 3 || s->fc == 4) ? s->count : 0;
+    mbfb_slot_finish(s, rc);
+}
+
+/* Run every posted request; 1 if the worker must stop. */
+static int run_posted(mbfb_bus_t *bus)
+{
+    mbfb_slot_t *s;
+    while (!__atomic_load_n(&bus->stop, __ATOMIC_ACQUIRE)) {
+        if ((s = mbfb_slot_next(bus)) == NULL)
+            return 0;
+        run_slot(bus, s);
+    }
+    return 1;
+}
+
+/* ---- plans ------------------------------------------------------------------------- */
+
+/* When a plan is due (monotonic us); INT64_MAX if it is not running. A device in
+ * back-off is due at its next probe only. */
+static int64_t plan_due(mbfb_plan_t *p)
+{
+    mbfb_dev_t *dev = mbfb_devs[p->dev];
+    int64_t due;
+    if (!__atomic_load_n(&p->running, __ATOMIC_ACQUIRE))
+        return INT64_MAX;
+    due = p->last_start_us == 0
+              ? 0
+              : p->last_start_us +
+                    (int64_t)__atomic_load_n(&p->period_ms, __ATOMIC_RELAXED) * 1000;
+    if (dev->probe_ms > 0 && dev->next_probe_us > due)
+        due = dev->next_probe_us;
+    return due;
+}
+
+/* One refresh of a plan: its items of this refresh's tiers back to back (posted
+ * requests before each), published as one snapshot. */
+static void run_refresh(mbfb_bus_t *bus, mbfb_plan_t *p)
+{
+    mbfb_plan_item_t items[MBFB_PLAN_MAX_ITEMS];
+    uint16_t words[MBFB_PLAN_MAX_WORDS];
+    mbfb_dev_t *dev = mbfb_devs[p->dev];
+    int n, period, slow_ms, slow, nwords = 0, result = MBFB_OK;
+    uint32_t cfg, gen, mask = 0;
+    int64_t start = mbfb_now_us();
+
+    if (!mbfb_plan_read_cfg(p, items, &n, &period, &slow_ms, &cfg)) {
+        p->last_start_us = start;
         return;
     }
-    update_backoff(dev, rc);
-    set_error(dev, rc);
-    mbfb_slot_finish(s, rc);
+    if (cfg != p->cfg_seen) { /* new settings: the slow tier again */
+        p->cfg_seen = cfg;
+        p->slow_done = 0;
+    }
+    gen = __atomic_load_n(&p->inval_gen, __ATOMIC_ACQUIRE);
+    slow = !p->slow_done || gen != p->slow_gen || start >= p->next_slow_us;
+    p->last_start_us = start;
+    memset(words, 0, sizeof words);
+    for (int i = 0; i < n; i++) {
+        op_t op;
+        int rc;
+        if ((items[i].tier == MBFB_TIER_SLOW && !slow) ||
+            (items[i].tier == MBFB_TIER_FAST && slow)) {
+            nwords += items[i].count;
+            continue;
+        }
+        if (run_posted(bus))
+            return;
+        memset(&op, 0, sizeof op);
+        op.devidx = p->dev;
+        op.fc = items[i].fc;
+        op.addr = items[i].addr;
+        op.count = items[i].count;
+        op.out = words + nwords;
+        rc = device_request(bus, &op);
+        if (rc != MBFB_OK) {
+            result = rc;
+            break;
+        }
+        mask |= 1u << i;
+        nwords += items[i].count;
+    }
+    if (result != MBFB_OK) {
+        memset(words, 0, sizeof words);
+        mask = 0;
+    } else {
+        if (slow) {
+            p->slow_done = 1;
+            p->slow_gen = gen;
+            p->next_slow_us = start + (int64_t)slow_ms * 1000;
+        }
+        MBFB_DIAG_INC(dev, refreshes);
+        if (dev->last_refresh_us != 0)
+            MBFB_DIAG_SET(dev, refresh_us, (uint32_t)(start - dev->last_refresh_us));
+        dev->last_refresh_us = start;
+    }
+    nwords = 0;
+    for (int i = 0; i < n; i++)
+        nwords += items[i].count;
+    mbfb_plan_publish(p, result, gen, mask, words, nwords);
+}
+
+/* The plan due first (ties: round robin after the last one run). Returns it when it
+ * is due now; else NULL and *wake_at (INT64_MAX: no plan running). */
+static mbfb_plan_t *next_plan(mbfb_bus_t *bus, int64_t now, int64_t *wake_at)
+{
+    int n = __atomic_load_n(&bus->n_plans, __ATOMIC_ACQUIRE), best_i = -1;
+    int64_t best_due = INT64_MAX;
+    mbfb_plan_t *best = NULL;
+
+    for (int k = 0; k < n; k++) {
+        int i = (bus->rr + 1 + k) % n;
+        mbfb_plan_t *p = __atomic_load_n(&bus->plans[i], __ATOMIC_ACQUIRE);
+        int64_t due;
+        if (p == NULL || (due = plan_due(p)) == INT64_MAX)
+            continue;
+        if (best == NULL || due < best_due) {
+            best = p;
+            best_due = due;
+            best_i = i;
+        }
+    }
+    *wake_at = best_due;
+    if (best == NULL || best_due > now)
+        return NULL;
+    bus->rr = best_i;
+    return best;
+}
+
+/* Sleep until `until` (monotonic us; INT64_MAX: no limit) or a sem_post. */
+static void sleep_until(mbfb_bus_t *bus, int64_t until)
+{
+    if (until == INT64_MAX) {
+        while (sem_wait(&bus->wake) != 0 && errno == EINTR) {
+        }
+        return;
+    }
+#if defined(__GLIBC__) && (__GLIBC__ > 2 || (__GLIBC__ == 2 && __GLIBC_MINOR__ >= 30))
+    {
+        struct timespec ts;
+        ts.tv_sec = (time_t)(until / 1000000);
+        ts.tv_nsec = (long)(until % 1000000) * 1000;
+        while (sem_clockwait(&bus->wake, CLOCK_MONOTONIC, &ts) != 0 && errno == EINTR) {
+        }
+    }
+#else /* sem_timedwait counts on CLOCK_REALTIME: convert the delay */
+    {
+        struct timespec ts;
+        int64_t d = until - mbfb_now_us(), r;
+        clock_gettime(CLOCK_REALTIME, &ts);
+        r = (int64_t)ts.tv_sec * 1000000 + ts.tv_nsec / 1000 + (d > 0 ? d : 0);
+        ts.tv_sec = (time_t)(r / 1000000);
+        ts.tv_nsec = (long)(r % 1000000) * 1000;
+        while (sem_timedwait(&bus->wake, &ts) != 0 && errno == EINTR) {
+        }
+    }
+#endif
 }
 
 void *mbfb_worker_main(void *arg)
@@ -172,14 +615,20 @@ void *mbfb_worker_main(void *arg)
     mbfb_bus_t *bus = (mbfb_bus_t *)arg;
 
     while (!__atomic_load_n(&bus->stop, __ATOMIC_ACQUIRE)) {
-        mbfb_slot_t *s;
-        while (sem_wait(&bus->wake) != 0 && errno == EINTR) {
+        mbfb_plan_t *p;
+        int64_t wake_at;
+        while (sem_trywait(&bus->wake) == 0) { /* the checks below see every post */
         }
-        while (!__atomic_load_n(&bus->stop, __ATOMIC_ACQUIRE) &&
-               (s = mbfb_slot_next(bus)) != NULL)
-            run_request(bus, s);
+        if (run_posted(bus))
+            break;
+        p = next_plan(bus, mbfb_now_us(), &wake_at);
+        if (p != NULL) {
+            run_refresh(bus, p);
+            continue;
+        }
+        sleep_until(bus, wake_at);
     }
-    if (bus->ctx != NULL)
+    if (bus->fd >= 0)
         bus->be->close(bus);
     return NULL;
 }

@@ -481,10 +481,12 @@ static void dead_device(void)
     CHECK_EQ(good3, iters);
     CHECK_EQ(peer_slave_count(&P, 1), iters); /* the healthy ones never needed a retry */
     CHECK_EQ(peer_slave_count(&P, 3), iters);
-    /* without back-off slave 2 would have had iters * 4 = 160 frames; with it:
-     * 3 failed transactions of 4 attempts, then single-attempt probes */
+    /* without back-off slave 2 would have had iters * 4 = 160 frames; with it: the
+     * request and one resync read (FC04: the only other reply shape of a one-register
+     * window); then no reply shape is left that its late reply could not match, so it
+     * gets no bus time for MBFB_LATE_MAX_MS (new behaviour, README "Late replies") */
     CHECK(peer_slave_count(&P, 2) <= 3 * 4 + 4);
-    CHECK(peer_slave_count(&P, 2) >= 3 * 4);
+    CHECK(peer_slave_count(&P, 2) >= 2);
     CHECK(offline2 >= iters - 3 - 4);
     CHECK_EQ(mbfb_dev_diag(d2, &dg), 0);
     CHECK_EQ(dg.offline, 1);
@@ -500,7 +502,7 @@ static void dead_device(void)
     CHECK_EQ(v[0], 77);
     CHECK_EQ(mbfb_dev_diag(d2, &dg), 0);
     CHECK_EQ(dg.offline, 0);
-    CHECK_EQ(dg.good, 1);
+    CHECK_EQ(dg.good, 2); /* the resync read's reply, then the request's */
     CHECK_EQ(t_run(d2, 3, 0, 1, NULL, v, 1), 1);
     teardown();
 }

@@ -1,0 +1,81 @@
+/*
+ * mbfb_serial.c - serial-line helpers every serial framing shares: the watched silence
+ * before a request, waiting for input, writing a whole frame.
+ */
+#ifndef _GNU_SOURCE
+#define _GNU_SOURCE /* ppoll (g++ defines it already) */
+#endif
+#include <errno.h>
+#include <poll.h>
+#include <unistd.h>
+
+#include "mbfb_internal.h"
+
+int mbfb_fd_wait_input(int fd, int64_t wait_us)
+{
+    struct pollfd p = {fd, POLLIN, 0};
+    struct timespec ts;
+    int rc;
+
+    if (wait_us < 0)
+        wait_us = 0;
+    ts.tv_sec = (time_t)(wait_us / 1000000);
+    ts.tv_nsec = (long)(wait_us % 1000000) * 1000;
+    while ((rc = ppoll(&p, 1, &ts, NULL)) < 0 && errno == EINTR) {
+    }
+    return rc < 0 ? -1 : rc > 0;
+}
+
+/* Wait until the line has been silent for silence_us, reading and discarding whatever
+ * arrives meanwhile (see mbfb_backend_t.quiet). Written here because libmodbus only
+ * flushes, and modbus_flush() on a serial port is tcflush(TCIOFLUSH): it would also drop
+ * output not yet on the wire (on a pty: a broadcast the peer has not read) and it cannot
+ * tell a finished line from one still carrying a late reply. */
+int mbfb_serial_quiet(mbfb_bus_t *bus, int silence_us, int limit_us)
+{
+    int64_t give_up = mbfb_now_us() + limit_us;
+    int stray = 0;
+
+    for (;;) {
+        uint8_t junk[256];
+        int64_t end = bus->quiet_from_us + silence_us;
+        ssize_t n;
+        int rc;
+
+        if (end > give_up)
+            end = give_up; /* babbling line: send anyway, the reply check decides */
+        rc = mbfb_fd_wait_input(bus->fd, end - mbfb_now_us());
+        if (rc <= 0)
+            return rc < 0 ? -MBFB_E_PORTLOST : stray; /* silent until `end` */
+        /* readable: a tty with VMIN = VTIME = 0 returns 0 only when it is gone */
+        n = read(bus->fd, junk, sizeof junk);
+        if (n > 0) {
+            int64_t now = mbfb_now_us();
+            stray += (int)n;
+            if (bus->quiet_from_us < now) /* a byte restarts the silence */
+                bus->quiet_from_us = now;
+            if (now >= give_up)
+                return stray;
+        } else if (n == 0 || (errno != EAGAIN && errno != EINTR)) {
+            return -MBFB_E_PORTLOST; /* EOF (adapter gone) or EIO */
+        }
+    }
+}
+
+int mbfb_fd_write_all(mbfb_bus_t *bus, const uint8_t *buf, int len)
+{
+    int done = 0;
+    while (done < len) {
+        ssize_t n = write(bus->fd, buf + done, (size_t)(len - done));
+        if (n > 0) {
+            done += (int)n;
+        } else if (n < 0 && (errno == EAGAIN || errno == EINTR)) {
+            struct pollfd p = {bus->fd, POLLOUT, 0};
+            if (poll(&p, 1, 1000) == 0)
+                return -MBFB_E_PORTLOST; /* output stuck for a second */
+        } else {
+            return -MBFB_E_PORTLOST;
+        }
+    }
+    return 0;
+}
