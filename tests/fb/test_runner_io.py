@@ -141,17 +141,33 @@ def run(*args, timeout=10):
     (["--set", P + "BAND=abc"], "not a value abc for REAL"),
     (["--set", P + "BAND"], "expected NAME=VALUE"),
     (["--control", "/nonexistent/dir/sock"], "control socket"),
+    (["--seconds", "-5"], "--seconds wants a number of seconds >= 0, not '-5'"),
+    (["--seconds", "abc"], "--seconds wants a number of seconds >= 0, not 'abc'"),
+    (["--seconds", "nan"], "--seconds wants a number of seconds >= 0, not 'nan'"),
+    (["--seconds", "1e999"], "--seconds wants a number of seconds >= 0, not '1e999'"),
+    (["--seconds"], "--seconds needs a value"),
+    (["--snapshot"], "--snapshot needs a value"),
+    (["--snapshot", ""], "--snapshot needs a non-empty value"),
+    (["--bogus"], "unknown option '--bogus'"),
 ])
 def test_bad_arguments_exit_2_before_any_scan(args, why):
+    """Every command-line error: exit 2, one line on stderr naming it, no scan run."""
     r = run("--run", *args)
     assert r.returncode == 2
+    assert r.stderr.startswith("runner: ") and r.stderr.count("\n") == 1, r.stderr
     assert why in r.stderr
-    assert "stopped after" not in r.stderr
+    assert "stopped after" not in r.stderr and r.stdout == ""
 
 
 def test_usage_without_run():
     r = run("--snapshot", "x")
-    assert r.returncode == 2 and "usage:" in r.stderr
+    assert r.returncode == 2 and r.stderr.count("\n") == 1
+    assert "--run missing (usage: " in r.stderr
+
+
+def test_help_prints_the_usage_and_exits_0():
+    r = run("--help")
+    assert r.returncode == 0 and r.stdout.startswith("usage: ") and "--run [--snapshot FILE]" in r.stdout
 
 
 def test_sigterm_stops_cleanly_and_removes_the_socket():

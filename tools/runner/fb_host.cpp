@@ -236,6 +236,14 @@ static int run_program(const run_args &a) {
     return 0;
 }
 
+static const char *USAGE = "--run [--snapshot FILE] [--control SOCKET] [--set NAME=VALUE]... [--seconds N]";
+
+// A command-line error: one line, exit 2.
+static int usage_error(const char *prog, const std::string &what) {
+    fprintf(stderr, "runner: %s (usage: %s %s; no arguments: test mode)\n", what.c_str(), prog, USAGE);
+    return 2;
+}
+
 int main(int argc, char **argv) {
     setvbuf(stdout, NULL, _IOLBF, 0);
     if (argc == 1) return run_tests();
@@ -243,19 +251,28 @@ int main(int argc, char **argv) {
     bool run = false;
     for (int i = 1; i < argc; i++) {
         std::string o = argv[i];
-        bool has_value = i + 1 < argc;
-        if (o == "--run") run = true;
-        else if (o == "--snapshot" && has_value) a.snapshot = argv[++i];
-        else if (o == "--control" && has_value) a.control = argv[++i];
-        else if (o == "--set" && has_value) a.sets.push_back(argv[++i]);
-        else if (o == "--seconds" && has_value) a.seconds = atof(argv[++i]);
-        else run = false, i = argc;
+        bool takes_value = o == "--snapshot" || o == "--control" || o == "--set" || o == "--seconds";
+        if (o == "--help" || o == "-h") {
+            printf("usage: %s %s\n       %s   (test mode: an ST test program, see fb_host.cpp)\n",
+                   argv[0], USAGE, argv[0]);
+            return 0;
+        }
+        if (o == "--run") { run = true; continue; }
+        if (!takes_value) return usage_error(argv[0], "unknown option '" + o + "'");
+        if (i + 1 >= argc) return usage_error(argv[0], o + " needs a value");
+        const char *v = argv[++i];
+        if (!*v) return usage_error(argv[0], o + " needs a non-empty value");
+        if (o == "--snapshot") a.snapshot = v;
+        else if (o == "--control") a.control = v;
+        else if (o == "--set") a.sets.push_back(v);
+        else {
+            char *end;
+            errno = 0;
+            a.seconds = strtod(v, &end);
+            if (*end || errno || !(a.seconds >= 0) || a.seconds > 1e9)
+                return usage_error(argv[0], "--seconds wants a number of seconds >= 0, not '" + std::string(v) + "'");
+        }
     }
-    if (!run) {
-        fprintf(stderr, "usage: %s                  (test mode)\n"
-                "       %s --run [--snapshot FILE] [--control SOCKET] [--set NAME=VALUE]... "
-                "[--seconds N]\n", argv[0], argv[0]);
-        return 2;
-    }
+    if (!run) return usage_error(argv[0], "--run missing");
     return run_program(a);
 }
