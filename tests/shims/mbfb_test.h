@@ -58,6 +58,8 @@ typedef struct peer_reply {
     int delay_ms;             /* wait this long before writing     */
     int pace_us;              /* > 0: one byte, then this pause (a slow line) */
     int hold;                 /* wait for peer_release() (at most 10 s) before writing */
+    int deaf;                 /* busy until this reply is out: requests that came in
+                                 meanwhile are discarded (a half-duplex device)      */
 } peer_reply_t;
 
 struct peer;
@@ -89,6 +91,7 @@ typedef struct peer {
                                  was still going out (a collision on RS-485)       */
     int paced_sent;           /* __atomic: bytes of the current paced reply sent   */
     int released;             /* __atomic: set by peer_release, taken by a held reply */
+    long ignored;             /* __atomic: bytes discarded by a deaf reply           */
     /* babbler: a second talker on the line (noise, another master, a broken unit) */
     pthread_t babbler;
     int babbling, babble_stop;                 /* babble_stop: __atomic            */

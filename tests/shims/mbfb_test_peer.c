@@ -243,6 +243,14 @@ static void *peer_main(void *arg)
                                                                     __ATOMIC_ACQ_REL); i++)
             t_sleep_ms(1);
         peer_write(p, &r);
+        while (r.deaf) { /* what came in while busy was not heard */
+            uint8_t junk[64];
+            struct pollfd pf = {p->master, POLLIN, 0};
+            ssize_t k;
+            if (poll(&pf, 1, 0) <= 0 || (k = read(p->master, junk, sizeof junk)) <= 0)
+                break;
+            __atomic_fetch_add(&p->ignored, (long)k, __ATOMIC_RELAXED);
+        }
     }
     return NULL;
 }

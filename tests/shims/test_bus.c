@@ -6,6 +6,7 @@
  */
 #include <sched.h>
 #include <string.h>
+#include <unistd.h>
 
 #include "mbfb_internal.h"
 #include "mbfb_test.h"
@@ -507,8 +508,49 @@ static void dead_device(void)
     teardown();
 }
 
+/* ---- one physical port, one bus; bauds the driver cannot set ------------------- */
+static void port_identity(void)
+{
+    char alias[200], slashes[220], dotted[220];
+    mbfb_bus_config_t c;
+    int bus;
+
+    t_scenario = "port identity";
+    bus = open_bus(peer_answer, PEER_RTU, 9600, 'N', 8, 1, MBFB_FRAMING_RTU, 0, -1);
+    CHECK(bus >= 0);
+    snprintf(alias, sizeof alias, "%s/alias", t_tmpdir()); /* a by-id style symlink */
+    unlink(alias);
+    CHECK_EQ(symlink(P.link, alias), 0);
+    snprintf(slashes, sizeof slashes, "/%s", P.link); /* //tmp/... */
+    snprintf(dotted, sizeof dotted, "%s/./port", t_tmpdir());
+    const char *names[] = {alias, slashes, dotted};
+    for (int i = 0; i < 3; i++) {
+        c = t_cfg(names[i], 9600, MBFB_FRAMING_RTU, 0, -1);
+        CHECK_EQ(mbfb_bus_open(&c), bus); /* same node: same bus */
+        c.baud = 19200;
+        CHECK_EQ(mbfb_bus_open(&c), -MBFB_E_CONFLICT);
+    }
+    /* a port that does not exist yet: its normalised path */
+    c = t_cfg("/nonexistent//ttyX0", 9600, MBFB_FRAMING_RTU, 0, -1);
+    bus = mbfb_bus_open(&c);
+    c.port = "/nonexistent/./ttyX0";
+    CHECK_EQ(mbfb_bus_open(&c), bus);
+    /* bauds libmodbus would silently run at 9600 */
+    c = t_cfg(P.link, 12345, MBFB_FRAMING_RTU, 0, -1);
+    CHECK_EQ(mbfb_bus_open(&c), -MBFB_E_BAUD);
+    c.baud = 14400;
+    CHECK_EQ(mbfb_bus_open(&c), -MBFB_E_BAUD);
+    CHECK_EQ(mbfb_bus_open_args("/dev/ttyS9", 10, 12345, 0, 8, 1, 0, 0, -1), -MBFB_E_BAUD);
+    CHECK(strstr(mbfb_strerror(-MBFB_E_BAUD), "baud") != NULL);
+    CHECK(strstr(mbfb_strerror(MBFB_E_UNCONFIRMED), "unconfirmed") != NULL);
+    unlink(alias);
+    CHECK_EQ(peer_bytes(&P), 0);
+    teardown();
+}
+
 int main(void)
 {
+    port_identity();
     manual_rtu();
     manual_ascii();
     manual_nocrc();

@@ -210,9 +210,55 @@ static void babble_forever(void)
     teardown();
 }
 
+/* Issue 8's wrong value: a read answered later than the whole retry window (held by
+ * the peer, released once the next request of the same shape is due) was taken as the
+ * answer to that next request (registers 10..19 returned the values of 0..9). Now the
+ * device is out of step after the failed read: the next request is preceded by a
+ * resync read of another reply shape, so the late reply fails that read's check and is
+ * never delivered. Delays 300 ms and 1.5 s after the next request was posted. */
+static int defect_delay_ms;
+static void defect_peer(peer_t *p, int n, const uint8_t *f, int len, peer_reply_t *r)
+{
+    peer_answer(p, n, f, len, r);
+    if (n == 0) {
+        r->hold = 1;
+        r->deaf = 1; /* half-duplex: busy with it, it hears nothing else */
+    }
+}
+
+static void late_defect(void)
+{
+    static const int delays[] = {300, 1500};
+    for (int k = 0; k < 2; k++) {
+        uint16_t v[NREG] = {0};
+        int dev, h, rc, wrong = 0;
+
+        defect_delay_ms = delays[k];
+        dev = t_serial_dev(&P, defect_peer, framing, 38400, 200, 3);
+        CHECK_EQ(t_run(dev, 3, 0, NREG, NULL, v, NREG), -MBFB_E_TIMEOUT); /* 4 attempts */
+        h = mbfb_post(dev, 3, 10, NREG, NULL); /* the same reply shape */
+        t_sleep_ms(defect_delay_ms);
+        peer_release(&P); /* the answer to registers 0..9 comes now */
+        CHECK(t_wait(h) >= MBFB_REQ_DONE);
+        rc = mbfb_take(h, v, NREG);
+        for (int i = 0; i < NREG; i++)
+            wrong += rc == NREG && v[i] != 0x1000 + 10 + i;
+        CHECK_EQ(wrong, 0); /* never a wrong value */
+        /* 300 ms: the request still gets its own answer within its retries; 1.5 s:
+         * the device is deaf for longer than the retries last, the request fails */
+        if (k == 0)
+            CHECK_EQ(rc, NREG);
+        else
+            CHECK(rc == NREG || rc == -MBFB_E_TIMEOUT || rc == -MBFB_E_BADREPLY);
+        CHECK(t_diag(dev).resyncs >= 1);
+        teardown();
+    }
+}
+
 int main(void)
 {
     static const t_case_t cases[] = {
+        {late_defect, "a reply later than the retry window (issue 8)"},
         {late_in_wait, "late reply during the wait"},
         {late_trickling, "late reply still trickling"},
         {babble_short, "another talker"},

@@ -1,0 +1,256 @@
+/*
+ * test_plans.c - refresh plans (mbfb_plan_*) on a pty against the scripted peer (RTU):
+ *   snapshot   one refresh = the items back to back, one consistent snapshot; take
+ *              returns 0 when nothing is new; bad settings refused
+ *   tiers      SLOW in the first refresh and after invalidate (gen), FAST otherwise;
+ *              words of items not read are zero
+ *   stop       no refresh starts after mbfb_plan_stop
+ *   fairness   two plans on one bus both refreshed; a dead device's plan costs (almost)
+ *              no bus time
+ *   writes     a write posted while plans run goes before the next plan read
+ *   diag       diag_seq changes with the diagnostics; bus diag counts plans
+ */
+#include <string.h>
+
+#include "mbfb_internal.h"
+#include "mbfb_test.h"
+
+static peer_t P;
+
+static int open_bus(void)
+{
+    char link[160];
+    mbfb_bus_config_t c;
+    snprintf(link, sizeof link, "%s/port", t_tmpdir());
+    if (peer_start(&P, link, PEER_RTU, peer_answer, NULL) != 0)
+        return -1;
+    for (int s = 1; s <= 3; s++)
+        for (int i = 0; i < 256; i++)
+            peer_set_reg(&P, s, i, (uint16_t)(s * 0x1000 + i));
+    c = t_cfg(P.link, 38400, MBFB_FRAMING_RTU, 200, 3);
+    return mbfb_bus_open(&c);
+}
+
+static void teardown(void)
+{
+    mbfb_shutdown();
+    peer_stop(&P);
+}
+
+/* Wait (at most 10 s) for a snapshot newer than *seq that satisfies ok (or any). */
+static int wait_snap(int plan, uint32_t *seq, mbfb_snap_t *s, int (*ok)(const mbfb_snap_t *))
+{
+    int64_t end = t_now_us() + 10000000;
+    while (t_now_us() < end) {
+        int rc = mbfb_plan_take(plan, seq, s);
+        if (rc < 0)
+            return rc;
+        if (rc == 1 && (ok == NULL || ok(s)))
+            return 1;
+        t_sleep_ms(1);
+    }
+    return 0;
+}
+
+static void snapshot(void)
+{
+    mbfb_plan_item_t it[2] = {{3, 0, 4, MBFB_TIER_EVERY}, {4, 20, 3, MBFB_TIER_EVERY}};
+    mbfb_plan_item_t bad[2] = {{5, 0, 1, 0}, {3, 0, 126, 0}};
+    mbfb_snap_t s;
+    uint32_t seq = 0;
+    int bus, dev, plan, n0;
+    uint8_t raw[PEER_BUF];
+
+    t_scenario = "snapshot";
+    bus = open_bus();
+    dev = mbfb_dev_open(bus, 1);
+    plan = mbfb_plan_open(dev);
+    CHECK(plan >= 0);
+    CHECK_EQ(mbfb_plan_take(plan, &seq, &s), 0); /* not started: nothing */
+    CHECK_EQ(mbfb_plan_set(plan, bad, 1, 0, 0), -MBFB_E_INVAL);
+    CHECK_EQ(mbfb_plan_set(plan, bad + 1, 1, 0, 0), -MBFB_E_INVAL);
+    CHECK_EQ(mbfb_plan_set(plan, it, 0, 0, 0), -MBFB_E_INVAL);
+    CHECK_EQ(mbfb_plan_set(plan, it, 2, -1, 0), -MBFB_E_INVAL);
+    CHECK_EQ(mbfb_plan_set(999999, it, 2, 0, 0), -MBFB_E_BADHANDLE);
+    CHECK_EQ(mbfb_plan_open(mbfb_dev_open(bus, 0)), -MBFB_E_INVAL); /* broadcast */
+    CHECK_EQ(peer_count(&P), 0);
+    CHECK_EQ(mbfb_plan_set(plan, it, 2, 100000, 0), 0); /* one refresh, then 100 s */
+    CHECK_EQ(wait_snap(plan, &seq, &s, NULL), 1);
+    CHECK_EQ(s.seq, 1);
+    CHECK_EQ(seq, 1);
+    CHECK_EQ(s.result, 0);
+    CHECK_EQ(s.read_mask, 3);
+    for (int i = 0; i < 4; i++)
+        CHECK_EQ(s.words[i], 0x1000 + i);
+    for (int i = 0; i < 3; i++)
+        CHECK_EQ(s.words[4 + i], 0x1000 + 20 + i);
+    /* the refresh's two reads went back to back, in item order */
+    n0 = peer_count(&P);
+    CHECK_EQ(n0, 2);
+    CHECK_HEX(raw, peer_raw(&P, 0, raw), "01 03 00 00 00 04 44 09");
+    CHECK_EQ(peer_raw(&P, 1, raw) > 1 ? raw[1] : 0, 4);
+    CHECK_EQ(mbfb_plan_take(plan, &seq, &s), 0); /* nothing new */
+    CHECK_EQ(mbfb_plan_take(-1, &seq, &s), -MBFB_E_BADHANDLE);
+    CHECK_EQ(t_diag(dev).refreshes, 1);
+    /* a new refresh is published with the next number and fresh values */
+    peer_set_reg(&P, 1, 2, 0xABCD);
+    CHECK_EQ(mbfb_plan_set(plan, it, 2, 0, 0), 0);
+    CHECK_EQ(wait_snap(plan, &seq, &s, NULL), 1);
+    CHECK(s.seq >= 2);
+    CHECK_EQ(s.words[2], 0xABCD);
+    teardown();
+}
+
+static uint32_t want_gen;
+static int has_slow(const mbfb_snap_t *s)
+{
+    return (s->read_mask & 2) && s->gen >= want_gen;
+}
+static int no_slow(const mbfb_snap_t *s)
+{
+    return !(s->read_mask & 2);
+}
+
+static void tiers(void)
+{
+    mbfb_plan_item_t it[3] = {{3, 0, 2, MBFB_TIER_EVERY},
+                              {3, 10, 3, MBFB_TIER_SLOW},
+                              {3, 20, 2, MBFB_TIER_FAST}};
+    mbfb_snap_t s;
+    uint32_t seq = 0;
+    int dev, plan, gen;
+
+    t_scenario = "tiers";
+    dev = mbfb_dev_open(open_bus(), 1);
+    plan = mbfb_plan_open(dev);
+    CHECK_EQ(mbfb_plan_set(plan, it, 3, 0, 3600000), 0); /* slow: once an hour */
+    CHECK_EQ(wait_snap(plan, &seq, &s, NULL), 1);
+    CHECK_EQ(s.seq, 1);
+    CHECK_EQ(s.read_mask, 3); /* first refresh: EVERY + SLOW, not FAST */
+    CHECK_EQ(s.words[2], 0x100A);
+    CHECK_EQ(s.words[4], 0x100C);
+    CHECK_EQ(s.words[5], 0); /* FAST not read: zero */
+    CHECK_EQ(s.words[6], 0);
+    CHECK_EQ(wait_snap(plan, &seq, &s, NULL), 1);
+    CHECK_EQ(s.read_mask, 5); /* EVERY + FAST */
+    CHECK_EQ(s.words[2], 0);  /* SLOW not read: zero */
+    CHECK_EQ(s.words[5], 0x1014);
+    gen = mbfb_plan_invalidate(plan);
+    CHECK(gen > 0);
+    want_gen = (uint32_t)gen;
+    CHECK_EQ(wait_snap(plan, &seq, &s, has_slow), 1);
+    CHECK_EQ(s.read_mask, 3);
+    CHECK_EQ(s.gen, (uint32_t)gen);
+    CHECK_EQ(wait_snap(plan, &seq, &s, no_slow), 1); /* and then FAST again */
+    CHECK_EQ(mbfb_plan_invalidate(plan), gen + 1);
+    teardown();
+}
+
+static void stop(void)
+{
+    mbfb_plan_item_t it[1] = {{3, 0, 1, MBFB_TIER_EVERY}};
+    mbfb_snap_t s;
+    uint32_t seq = 0;
+    int dev, plan, n;
+
+    t_scenario = "stop";
+    dev = mbfb_dev_open(open_bus(), 1);
+    plan = mbfb_plan_open(dev);
+    CHECK_EQ(mbfb_plan_set(plan, it, 1, 0, 0), 0);
+    CHECK_EQ(wait_snap(plan, &seq, &s, NULL), 1);
+    CHECK_EQ(mbfb_plan_stop(plan), 0);
+    t_sleep_ms(100); /* a refresh on the wire may finish */
+    n = peer_count(&P);
+    mbfb_plan_take(plan, &seq, &s);
+    t_sleep_ms(300);
+    CHECK_EQ(peer_count(&P), n);
+    CHECK_EQ(mbfb_plan_take(plan, &seq, &s), 0);
+    CHECK_EQ(mbfb_plan_stop(-5), -MBFB_E_BADHANDLE);
+    teardown();
+}
+
+static void fairness(void)
+{
+    mbfb_plan_item_t it[1] = {{3, 0, 2, MBFB_TIER_EVERY}};
+    mbfb_snap_t s;
+    mbfb_bus_diag_t bd;
+    int bus, d[3], p[3], n1, n2, n3;
+    uint32_t seq[3] = {0, 0, 0};
+
+    t_scenario = "fairness";
+    bus = open_bus();
+    peer_set_dead(&P, 3, 1);
+    for (int i = 0; i < 3; i++) {
+        d[i] = mbfb_dev_open(bus, i + 1);
+        p[i] = mbfb_plan_open(d[i]);
+        CHECK_EQ(mbfb_plan_set(p[i], it, 1, 0, 0), 0); /* as fast as the line allows */
+    }
+    t_sleep_ms(1500);
+    n1 = peer_slave_count(&P, 1);
+    n2 = peer_slave_count(&P, 2);
+    n3 = peer_slave_count(&P, 3);
+    printf("fairness: %d / %d refreshes of slaves 1 / 2, %d frames to the dead slave 3\n",
+           n1, n2, n3);
+    CHECK(n1 > 10);
+    CHECK(n2 > 10);
+    CHECK(n1 <= 2 * n2 + 2 && n2 <= 2 * n1 + 2); /* neither starves */
+    CHECK(n3 <= 6); /* 2 attempts, then no bus time (back-off, no free reply shape) */
+    CHECK_EQ(wait_snap(p[0], &seq[0], &s, NULL), 1);
+    CHECK_EQ(s.words[0], 0x1000);
+    CHECK_EQ(wait_snap(p[1], &seq[1], &s, NULL), 1);
+    CHECK_EQ(s.words[0], 0x2000);
+    CHECK_EQ(wait_snap(p[2], &seq[2], &s, NULL), 1); /* the dead one: its error */
+    CHECK(s.result != 0);
+    CHECK_EQ(s.read_mask, 0);
+    CHECK_EQ(mbfb_bus_diag(d[0], &bd), 0);
+    CHECK_EQ(bd.plans, 3);
+    CHECK(bd.transactions >= (uint32_t)(n1 + n2));
+    CHECK(bd.busy_permille > 0 && bd.busy_permille <= 1000);
+    CHECK_EQ(mbfb_bus_diag(-1, &bd), -MBFB_E_BADHANDLE);
+    CHECK(t_diag(d[0]).refreshes > 10);
+    teardown();
+}
+
+static void writes_first(void)
+{
+    mbfb_plan_item_t it[2] = {{3, 0, 8, MBFB_TIER_EVERY}, {3, 8, 8, MBFB_TIER_EVERY}};
+    uint16_t v[1] = {0x5A5A}, raw_v;
+    uint8_t raw[PEER_BUF];
+    int dev, plan, c0, h, at = -1, n;
+    uint32_t ds;
+
+    t_scenario = "writes first";
+    dev = mbfb_dev_open(open_bus(), 1);
+    plan = mbfb_plan_open(dev);
+    CHECK_EQ(mbfb_plan_set(plan, it, 2, 0, 0), 0);
+    while (peer_count(&P) < 6)
+        t_sleep_ms(1);
+    ds = mbfb_dev_diag_seq(dev);
+    c0 = peer_count(&P);
+    h = mbfb_post(dev, 6, 100, 1, v);
+    CHECK_EQ(t_wait(h), MBFB_REQ_DONE);
+    CHECK_EQ(mbfb_take(h, NULL, 0), 0);
+    n = peer_count(&P);
+    for (int i = c0 - 1; i < n && i < PEER_LOG; i++)
+        if (peer_raw(&P, i, raw) > 1 && raw[1] == 6 && at < 0)
+            at = i;
+    /* at most the read on the wire when it was posted came before it */
+    CHECK(at >= c0 - 1 && at <= c0 + 1);
+    pthread_mutex_lock(&P.lock);
+    raw_v = P.regs[1][100];
+    pthread_mutex_unlock(&P.lock);
+    CHECK_EQ(raw_v, 0x5A5A);
+    CHECK(mbfb_dev_diag_seq(dev) != ds); /* the diagnostics changed */
+    CHECK_EQ(mbfb_dev_diag_seq(-1), 0);
+    teardown();
+}
+
+int main(void)
+{
+    snapshot();
+    tiers();
+    stop();
+    fairness();
+    writes_first();
+    return t_done("test_plans");
+}
