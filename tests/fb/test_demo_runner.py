@@ -1,17 +1,24 @@
 """The quick start without OpenPLC's runtime: ./demo.sh in runner mode, run as a person would.
 
-A matiec-only toolchain is laid out in a temp dir (MATIEC_HOME: iec2c, lib/*.txt, lib/C/*.h,
-as symlinks to OpenPLC's files; or the MATIEC_HOME you have), OPENPLC_HOME points nowhere, and
-`demo.sh --build-dir TMP/build` must find matiec, build the example's runner with CMake, start
-the simulator and show the live screen. The screen is read while it runs; once it showed what
-is checked below (or after a deadline), the demo gets SIGINT as from Ctrl-C in a terminal, and
-must end, with the runner gone and its temp files removed. Checked on the screen:
+Two toolchains (argument):
+  home    (fb_demo_runner) a matiec-only MATIEC_HOME: the MATIEC_HOME you have, or one laid
+          out in a temp dir from OpenPLC's files (iec2c, lib/*.txt, lib/C/*.h as symlinks);
+  source  (fb_demo_source) the embedded default without network: no MATIEC_HOME, no iec2c on
+          PATH, and matiec given only as a source tree (MATIEC_SOURCE_DIR, else OpenPLC's own
+          $OPENPLC_HOME/utils/matiec_src), which the build copies and builds into its own tree.
+In both, OPENPLC_HOME points nowhere and `demo.sh --build-dir TMP/build` must build the
+example's runner with CMake (and matiec, in source mode), start the simulator and show the
+live screen. The screen is read while it runs; once it showed what is checked below (or after a
+deadline), the demo gets SIGINT as from Ctrl-C in a terminal, and must end, with the runner
+gone and its temp files removed. Checked on the screen:
 - the PLC's PV of each zone is near the simulator's PV shown beside it (simulator control
   'get'), the part count increases and never passes the simulator's count;
 - the operator's set point requests (130 / 110, written to %MW0/%MW1 through the runner's
   control socket) reach the simulated instruments: the simulator's SP1/SV change from their
-  start values 120 / 100, and the PLC reads the new SVs back.
-Exit 0 pass, 1 fail, 77 skipped (no matiec; 1 with MBFB_REQUIRE_TOOLCHAIN=1).
+  start values 120 / 100, and the PLC reads the new SVs back;
+- the units, the status words and the trend are on the screen.
+Exit 0 pass, 1 fail, 77 skipped with the reason (no matiec, a MATIEC_HOME without iec2c, no
+local matiec source; 1 with MBFB_REQUIRE_TOOLCHAIN=1).
 """
 import os
 import re
@@ -47,9 +54,13 @@ def skip(reason):
 
 
 def matiec_home(tmp):
-    """MATIEC_HOME if set, else a matiec layout made of OpenPLC's files (symlinks)."""
+    """MATIEC_HOME if set (and holding iec2c), else a matiec layout made of OpenPLC's files."""
     home = os.environ.get("MATIEC_HOME")
     if home:
+        missing = [p for p in ("iec2c", "lib/ieclib.txt") if not os.path.exists(os.path.join(home, p))]
+        if missing:
+            skip(f"MATIEC_HOME={home} is not a matiec build (no {', '.join(missing)}); "
+                 "unset it to use OpenPLC's iec2c")
         return home
     oplc = os.environ.get("OPENPLC_HOME") or "/opt/OpenPLC_v3"
     web = os.path.join(oplc, "webserver")
@@ -63,6 +74,26 @@ def matiec_home(tmp):
         os.symlink(os.path.join(web, "lib", name), os.path.join(view, "lib", name))
     os.symlink(os.path.join(web, "core", "lib"), os.path.join(view, "lib", "C"))
     return view
+
+
+def matiec_source():
+    """A local matiec source tree: MATIEC_SOURCE_DIR, else OpenPLC's utils/matiec_src."""
+    src = os.environ.get("MATIEC_SOURCE_DIR")
+    if src:
+        if not all(os.path.exists(os.path.join(src, p)) for p in ("configure.ac", "lib/ieclib.txt")):
+            skip(f"MATIEC_SOURCE_DIR={src} is not a matiec source tree (configure.ac, lib/ieclib.txt)")
+        return src
+    oplc = os.environ.get("OPENPLC_HOME") or "/opt/OpenPLC_v3"
+    src = os.path.join(oplc, "utils", "matiec_src")
+    if not all(os.path.exists(os.path.join(src, p)) for p in ("configure.ac", "lib/ieclib.txt")):
+        skip(f"no local matiec source: MATIEC_SOURCE_DIR unset and no {src} (OpenPLC v3's copy); "
+             "this test builds matiec without network")
+    return src
+
+
+def path_without_iec2c():
+    return os.pathsep.join(d for d in os.environ.get("PATH", "").split(os.pathsep)
+                           if d and not os.path.exists(os.path.join(d, "iec2c")))
 
 
 def frames(text):
@@ -131,12 +162,25 @@ def check(fs):
 
 
 def main():
+    mode = sys.argv[1] if len(sys.argv) > 1 else "home"
+    if mode not in ("home", "source"):
+        print(f"usage: {sys.argv[0]} [home|source]", file=sys.stderr)
+        return 2
     tmp = tempfile.mkdtemp(prefix="fbtest-demo-")
     out_path = os.path.join(tmp, "screen.txt")
     proc = None
     try:
-        env = dict(os.environ, MATIEC_HOME=matiec_home(tmp), OPENPLC_HOME=os.path.join(tmp, "no-openplc"))
-        print(f"MATIEC_HOME={env['MATIEC_HOME']}  OPENPLC_HOME={env['OPENPLC_HOME']}")
+        env = dict(os.environ, OPENPLC_HOME=os.path.join(tmp, "no-openplc"))
+        if mode == "home":
+            env["MATIEC_HOME"] = matiec_home(tmp)
+            lib = env["MATIEC_HOME"]
+        else:
+            env.pop("MATIEC_HOME", None)
+            env.update(MATIEC_SOURCE_DIR=matiec_source(), MBFB_FETCH_MATIEC="OFF",
+                       PATH=path_without_iec2c())
+            lib = os.path.join(tmp, "build", "_matiec", "src")
+        for k in ("MATIEC_HOME", "MATIEC_SOURCE_DIR", "OPENPLC_HOME"):
+            print(f"{k}={env.get(k, '(unset)')}")
         with open(out_path, "w") as out:
             # Its own session: SIGINT to its process group is Ctrl-C in a terminal.
             proc = subprocess.Popen([os.path.join(ROOT, "demo.sh"), "--build-dir", os.path.join(tmp, "build"),
@@ -171,9 +215,17 @@ def main():
         bad += check(fs) if fs else []
         if proc.returncode != 0:
             bad.append(f"demo.sh exited {proc.returncode}")
-        view = env["MATIEC_HOME"]
-        if f"fb: matiec library {view}/lib, C headers {view}/lib/C" not in text:
-            bad.append("the build did not use the matiec layout of MATIEC_HOME")
+        if f"fb: matiec library {lib}/lib, C headers {lib}/lib/C" not in text:
+            bad.append(f"the build did not use the matiec of {lib}")
+        if mode == "source" and f"-- toolchain: matiec built from MATIEC_SOURCE_DIR={env['MATIEC_SOURCE_DIR']}" not in text:
+            bad.append("the configure summary does not say matiec was built from the source tree")
+        last = text.split(CLEAR)[-2] if text.count(CLEAR) >= 2 else ""
+        for what in ("PV °C", "SV °C", "count in parts", "heater output MV1", "trend, last 3 min",
+                     "codes now:", "legend:"):
+            if what not in last:
+                bad.append(f"the screen does not show {what!r}")
+        if not re.search(r"^ *(?:-?\d+\.\d)? *\|[^\n]*[o*]", last, re.M):
+            bad.append("the trend has no PV point")
         if "the project's own runner" not in text:
             bad.append("the screen does not name the runner")
         if "stopped: PLC and simulator ended" not in text:
