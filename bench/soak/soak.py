@@ -237,7 +237,7 @@ class Soak:
         self.by_addr = {d.addr: d for d in self.devs}
         self.stats = {
             "transactions": 0, "reads": 0, "writes": 0, "good_reads": 0, "failed_reads": 0,
-            "not_sent_offline": 0, "wrong_values": 0, "writes_done": 0, "writes_failed": 0,
+            "not_sent_offline": 0, "not_sent_noport": 0, "wrong_values": 0, "writes_done": 0, "writes_failed": 0,
             "writes_lost": 0, "writes_failed_applied": 0, "unconfirmed": 0,
             "unconfirmed_applied": 0, "doubled_once": 0, "doubled_idempotent": 0,
             "log_inconsistent": 0, "results": {}}
@@ -246,6 +246,7 @@ class Soak:
         self.pending_recovery = []   # (kind, device or None, since)
         self.wrong_examples = []
         self.write_examples = []
+        self.log_examples = []
         self.writes = []
         self.unrecovered = 0
         self.final_reads = 0         # reads of the final recovery check (on the wire too)
@@ -399,9 +400,11 @@ class Soak:
         result = 0 if rc >= 0 else -rc
         st["results"][result] = st["results"].get(result, 0) + 1
         dev.backoff = result == E_OFFLINE
-        if result == E_OFFLINE:
-            st["not_sent_offline"] += 1
-            dev.resume_at = now + 0.05   # a block's period: do not spin on back-off
+        if result in (E_OFFLINE, E_NOPORT):
+            # not on the wire (back-off, or the port is not there): not a transaction; wait
+            # a block's period before the next request instead of spinning
+            st["not_sent_offline" if result == E_OFFLINE else "not_sent_noport"] += 1
+            dev.resume_at = now + 0.05
         else:
             st["transactions"] += 1
         if result == 0:
@@ -416,8 +419,9 @@ class Soak:
         elif dev.fail_since is None and result < 128:
             dev.fail_since = req["t"]
         rec = req["write"]
+        sent = result not in (E_OFFLINE, E_NOPORT)
         if rec is None:
-            st["reads"] += 1
+            st["reads"] += sent
             if result != 0:
                 st["failed_reads"] += 1
                 return
@@ -431,7 +435,7 @@ class Soak:
                                                 "addr": req["addr"], "count": req["count"],
                                                 "wrong": bad[:4], "t": round(now - self.t0, 3)})
             return
-        st["writes"] += 1
+        st["writes"] += sent
         rec["result"] = result
         regs = list(range(rec["addr"], rec["addr"] + (1 if dev.kind == "mts9" else
                                                        len(rec["values"]))))
@@ -584,6 +588,9 @@ class Soak:
                                     rec, rec["values"])
             if rec["applied"] and rec["received"] == 0:
                 s["log_inconsistent"] += 1
+                if len(self.log_examples) < 10:
+                    self.log_examples.append({k: rec[k] for k in ("dev", "fc", "addr", "values",
+                                                                  "result")})
         self.unrecovered += len(self.pending_recovery)
         applied = {}
         for dev in self.sim_stats["devices"].values():
@@ -620,7 +627,7 @@ class Soak:
                     "extra_frames_per_fault": round((self.rx_frames - s["transactions"] -
                                                      self.final_reads) /
                                                     max(1, faults), 2)},
-            "wrong_examples": self.wrong_examples, "write_examples": self.write_examples,
+            "wrong_examples": self.wrong_examples, "log_examples": self.log_examples, "write_examples": self.write_examples,
         }
         return out
 
@@ -633,7 +640,8 @@ def print_report(r):
     p("  faults injected: " + ", ".join(f"{k} {v}" for k, v in r["faults_injected"].items()))
     p("  reply faults applied by the simulator: " +
       ", ".join(f"{k} {v}" for k, v in sorted(r["faults_applied_by_sim"].items())))
-    p(f"  not sent (device in back-off): {r['not_sent_offline']}")
+    p(f"  not sent: device in back-off {r['not_sent_offline']}, port not there "
+      f"{r['not_sent_noport']}")
     p(f"  results: " + ", ".join(f"{k}: {v}" for k, v in r["results"].items()))
     p(f"  WRONG VALUES delivered as good:    {r['wrong_values']}  (of {r['good_reads']} good reads)")
     p(f"  writes lost (Done, not applied):   {r['writes_lost']}  (of {r['writes_done']} Done)")
@@ -656,6 +664,8 @@ def print_report(r):
         p(f"  wrong: {ex}")
     for ex in r["write_examples"][:5]:
         p(f"  write: {ex}")
+    for ex in r["log_examples"][:5]:
+        p(f"  applied but not in the log: {ex}")
 
 
 def failed(r) -> bool:
