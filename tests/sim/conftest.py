@@ -59,9 +59,11 @@ def frames(sim):
 class RawPort:
     """A bare serial master (pyserial) to put exact bytes on the line and read what comes."""
 
-    def __init__(self, port, baud=9600):
+    def __init__(self, port, baud=9600, stop=2):
         import serial
-        self.ser = serial.Serial(port, baud, timeout=0)
+        # The simulator hears only a master whose port matches the device's line (a pty
+        # shows it baud and stop bits): 8N2 by default, as the simulator's default line.
+        self.ser = serial.Serial(port, baud, stopbits=stop, timeout=0)
 
     def xfer(self, data, wait=0.3):
         """Send bytes (or a hex string); return everything received within `wait` s."""
@@ -86,8 +88,8 @@ def raw_factory():
     """raw_factory(port) -> RawPort; closed after the test."""
     ports = []
 
-    def make(port, baud=9600):
-        ports.append(RawPort(port, baud))
+    def make(port, baud=9600, stop=2):
+        ports.append(RawPort(port, baud, stop))
         return ports[-1]
     yield make
     for p in ports:
@@ -103,22 +105,3 @@ def crc(frame_hex):
         for _ in range(8):
             c = (c >> 1) ^ 0xA001 if c & 1 else c >> 1
     return (data + bytes([c & 0xFF, c >> 8])).hex(" ").upper()
-
-
-@pytest.fixture
-def registers_json():
-    """The resolved register maps of the shared spec (registers.json), parsed.
-
-    Looked up as $MBFB_SHARED_SPEC, else ../shared/spec beside the repository (where CI and the
-    developers' machines keep it). Missing: the test is skipped, or fails under
-    MBFB_REQUIRE_TOOLCHAIN=1, since CI always has it."""
-    import json
-    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
-    spec = os.environ.get("MBFB_SHARED_SPEC") or os.path.join(os.path.dirname(root), "shared", "spec")
-    path = os.path.join(spec, "registers.json")
-    if not os.path.exists(path):
-        if REQUIRE:
-            pytest.fail(f"shared spec not found at {path} (set MBFB_SHARED_SPEC)")
-        pytest.skip(f"shared spec not found at {path}")
-    with open(path, encoding="utf-8") as fh:
-        return json.load(fh)

@@ -109,7 +109,7 @@ def test_pace_inside_the_simulator(raw_factory):
     """--ptyline none: replies leave at the character time (+ 1..10 ms turnaround)."""
     with simctl.Simulator(["mvd94:1:SV=1000"], pace=True, baud=2400,
                           extra=["--ptyline", "none"]) as sim:
-        raw = raw_factory(sim.port)
+        raw = raw_factory(sim.port, 2400)
         char = 11 / 2400
         t0 = time.monotonic()
         raw.ser.write(bytes.fromhex(READ))

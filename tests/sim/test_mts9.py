@@ -133,10 +133,3 @@ def test_ascii_manual_frames_and_minimalmodbus():
         assert inst.read_long(0, byteorder=minimalmodbus.BYTEORDER_LITTLE_SWAP) == 4242
         log = frames(sim)
         assert ("rx", ":01100000000204000A0102DC\r\n".encode().hex(" ").upper()) in log
-
-
-def test_map_matches_registers_json(registers_json):
-    from modsim.mts9 import REGS
-    spec = registers_json["mt_s9"]["registers"]
-    assert [(r.addr, r.name, r.words) for r in REGS] == \
-        [(r["dec"], r["name"], r["words"]) for r in spec]

@@ -140,14 +140,6 @@ def test_baud_change_makes_it_deaf(sim, raw_factory):
     assert raw.xfer(crc("07 03 00 1C 00 01")).hex(" ").upper() == crc("07 03 02 00 1E")
 
 
-def test_map_matches_registers_json(registers_json):
-    """Names and addresses of the model = the resolved map in the shared spec."""
-    from modsim.mvd94 import REGS
-    spec = registers_json["setpro_mv_d94_and_vd"]
-    want = {r["addr"]: r["name"] for r in spec["holding"] + spec["input"]}
-    assert {r.addr: r.name for r in REGS} == want
-
-
 def test_thermal_model_follows_sv():
     """PV rises toward SV under the controller's own output; a power cycle drops the output."""
     with simctl.Simulator(["mvd94:1:SV=80,PB=5.0,TD=0,MR=10.0"], time_scale=60) as s:

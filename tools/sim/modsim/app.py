@@ -98,7 +98,9 @@ def build(args):
                 dev.set_eng(name, value)
             except KeyError as err:
                 raise ValueError(str(err).strip('"')) from None
-        if not dev.line_matches():
+        if not args.tcp:
+            check_line(kind, addr, dev, line)
+        if not args.tcp and not dev.hears(None):
             print(f"mbsim: warning: {kind}:{addr} settings do not match the line; it stays "
                   "silent", file=sys.stderr)
         devices.append(dev)
@@ -121,6 +123,18 @@ def find_ptyline(given: str | None) -> str | None:
     found = glob.glob(os.path.join(root, "build*", "tools", "sim", "ptyline", "mbfb-ptyline"))
     found = [f for f in found if os.access(f, os.X_OK)]
     return max(found, key=os.path.getmtime) if found else None
+
+
+def check_line(kind, addr, dev, line):
+    """The line's baud and format must be ones the device can speak (its map's "line")."""
+    spec = dev.MAP.line if hasattr(dev, "MAP") else {}
+    fmt = f"{line.data_bits}{line.parity}{line.stop_bits}"
+    if spec.get("bauds") and line.baud not in spec["bauds"]:
+        raise ValueError(f"{kind}:{addr} cannot run at {line.baud} baud (it speaks "
+                         f"{', '.join(map(str, spec['bauds']))}): put it on a line of its own")
+    if spec.get("formats") and fmt not in spec["formats"]:
+        raise ValueError(f"{kind}:{addr} speaks {' or '.join(spec['formats'])}, not {fmt} "
+                         "(--format): put it on a line of its own")
 
 
 class App:

@@ -105,23 +105,30 @@ class Bus:
         if direction == "tx":
             self.counters["tx_frames"] += 1
 
-    def request(self, addr: int, pdu: bytes) -> Reply | None:
-        """Apply a well-formed request; the reply to send, or None for silence."""
+    def request(self, addr: int, pdu: bytes, master: dict | None = None) -> Reply | None:
+        """Apply a well-formed request; the reply to send, or None for silence. `master`: the
+        character format of the sender's port as far as the transport sees it (Device.hears)."""
         self.counters["rx_frames"] += 1
         if not pdu:
             return None
         if addr == 0:                       # broadcast: applied by all, answered by none
             self.counters["broadcasts"] += 1
             for dev in self.devices:
-                if not dev.offline and dev.line_matches():
+                if not dev.offline and dev.hears(master):
                     dev.handle(pdu, broadcast=True)
             return None
         dev = self.device(addr)
         if dev is None:
             self.counters["foreign"] += 1
             return None
-        if dev.offline or not dev.line_matches():
+        if dev.offline:
             dev.stats["ignored"] += 1
+            return None
+        if not dev.hears(master):
+            dev.stats["ignored"] += 1
+            dev.stats["line_mismatch"] += 1
+            if self.log and self.log[-1]["dir"] == "rx":   # recorded just before this call
+                self.log[-1]["info"] = "line settings differ: heard as garbage"
             return None
         if dev.late_pending:
             # A half-duplex instrument that has not sent its reply yet is busy: it neither

@@ -1,4 +1,4 @@
-"""FDC Series 100 / Brainchild BTC-9100 family: DEVICES.md section 3, manual chapter 7.
+"""FDC Series 100 / Brainchild BTC-9100 family: maps/fdc100.json, manual chapter 7.
 
 Per the manual: FC 03, 06, 16 only (else exception 01 and EROR 10); registers 0..79 and the
 aliases 128..131 = 64..67 (else 02, EROR 11); writes to read-only or locked registers -> 03 and
@@ -7,56 +7,34 @@ M = A * 10^d + offset (section 3.6). CMND (72) commands: reset, manual, auto-tun
 """
 from __future__ import annotations
 
-from .regmap import ILLEGAL_ADDRESS, ILLEGAL_VALUE, Device, ModbusError, Reg
+from .regmap import ILLEGAL_ADDRESS, ILLEGAL_VALUE, Device, ModbusError, load_map, regs_from_map
 from .thermal import Loop
 
-# scale class -> (decimals, offset); S4/S5 depend on INPT/DP (see scaling()).
-FIXED = {"N1": (1, 19999), "N2": (2, 19999), "F1": (1, 0), "F2": (2, 0), "F3": (3, 0),
-         "U": (0, 0)}
-E = 19999
-# (name, scale, access, Example-1 default word). Access: RW, R, MAN (R/W in manual mode),
-# CAL (R/W after CMND = 0x682D).
-MAP = [
-    ("SP1", "S4", "RW", 0x4F19), ("SP2", "S7", "RW", 0x4E83), ("SP3", "S6", "RW", 0x4E83),
-    ("LOCK", "U", "RW", 0), ("INPT", "U", "RW", 1), ("UNIT", "U", "RW", 0), ("DP", "U", "RW", 1),
-    ("INLO", "S4", "RW", 0x4D6D), ("INHI", "S4", "RW", 0x51C4), ("SP1L", "S4", "RW", 0x4D6D),
-    ("SP1H", "S4", "RW", 0x6321), ("SHIF", "S4", "RW", E), ("FILT", "U", "RW", 2),
-    ("DISP", "U", "RW", 0), ("PB", "S5", "RW", 100), ("TI", "U", "RW", 100),
-    ("TD", "F1", "RW", 250), ("OUT1", "U", "RW", 0), ("O1TY", "U", "RW", 0),
-    ("O1FT", "N1", "RW", E), ("O1HY", "S5", "RW", 1), ("CYC1", "F1", "RW", 180),
-    ("OFST", "F1", "RW", 250), ("RAMP", "U", "RW", 0), ("RR", "S5", "RW", 0),
-    ("OUT2", "U", "RW", 2), ("RELO", "S4", "RW", E), ("O2TY", "U", "RW", 0),
-    ("O2FT", "N1", "RW", E), ("O2HY", "S5", "RW", 1), ("CYC2", "F1", "RW", 180),
-    ("CPB", "U", "RW", 100), ("DB", "N1", "RW", E), ("ALFN", "U", "RW", 2),
-    ("REHI", "S4", "RW", 0x5207), ("ALMD", "U", "RW", 0), ("ALHY", "S5", "RW", 1),
-    ("ALFT", "U", "RW", 0), ("COMM", "U", "RW", 1), ("ADDR", "U", "RW", 1),
-    ("BAUD", "U", "RW", 2), ("DATA", "U", "RW", 1), ("PARI", "U", "RW", 0),
-    ("STOP", "U", "RW", 0), ("SEL1", "U", "RW", 2), ("SEL2", "U", "RW", 3),
-    ("SEL3", "U", "RW", 4), ("SEL4", "U", "RW", 6), ("SEL5", "U", "RW", 7),
-    ("SEL6", "U", "RW", 8), ("SEL7", "U", "RW", 10), ("SEL8", "U", "RW", 17),
-    ("DATE", "U", "RW", 0), ("SRNO", "U", "RW", 0), ("HOUR", "U", "RW", 0),
-    ("ADLO", "N1", "CAL", E), ("ADHI", "N1", "CAL", E), ("RTDL", "N1", "CAL", E),
-    ("RTDH", "N1", "CAL", E), ("CJLO", "N2", "CAL", E), ("CJHI", "N1", "CAL", E),
-    ("BPL1", "F2", "R", 0), ("BPL2", "F2", "R", 0), ("CJCL", "F3", "R", 0),
-    ("PV", "S4", "R", E), ("SV", "S4", "R", E), ("MV1", "F2", "MAN", 0), ("MV2", "F2", "MAN", 0),
-    ("TIMER", "N1", "R", E), ("EROR", "U", "R", 0), ("MODE", "U", "R", 0),
-    ("PROG", "F2", "R", 610), ("CMND", "U", "RW", 0), ("JOB1", "U", "RW", 0),
-    ("JOB2", "U", "RW", 0), ("JOB3", "U", "RW", 0), ("CJCT", "N2", "R", 22499),
-    ("RSV77", "U", "R", 0), ("RSV78", "U", "R", 0), ("RSV79", "U", "R", 0),
-]
-# Enumerated registers whose legal codes follow from the manual (DEVICES.md 3.1, 3.6).
-LIMITS = {"DP": (0, 3), "BAUD": (0, 6), "DATA": (0, 1), "PARI": (0, 2), "STOP": (0, 1),
-          "ADDR": (1, 255), "MV1": (0, 10000), "MV2": (0, 10000), "LOCK": (0, 3)}
-REGS = tuple(Reg(i, n, access=a, scale=s, default=d, lo=LIMITS.get(n, (None, None))[0],
-                 hi=LIMITS.get(n, (None, None))[1]) for i, (n, s, a, d) in enumerate(MAP))
-ALIASES = {128: 64, 129: 65, 130: 66, 131: 67}
-BAUDS = (2400, 4800, 9600, 14400, 19200, 28800, 38400)
-PARITY = "EON"                     # PARI 0 = Even, 1 = Odd, 2 = None
-CMD_RESET, CMD_MANUAL, CMD_AUTOTUNE, CMD_CALIBRATE = 0x6825, 0x6827, 0x6828, 0x682D
-MODE_NORMAL, MODE_CAL, MODE_AT, MODE_MANUAL = 0x00, 0x01, 0x02, 0x03
-EROR_FUNC, EROR_ADDR, EROR_RO, EROR_RANGE = 10, 11, 14, 15
+MAP = load_map("fdc100")
+# Registers (access RW, R, MAN = R/W in manual mode, CAL = R/W after CMND = 0x682D), scales,
+# ranges and Example-1 defaults: maps/fdc100.json.
+REGS = regs_from_map(MAP)
+ALIASES = {a: r.addr for r in MAP.registers for a in r.aliases_at}     # 128..131 -> 64..67
+BAUDS = tuple(sorted(MAP.bauds(), key=MAP.bauds().get))               # index = BAUD code
+PARITY = "".join(sorted(MAP.table("PARI"), key=MAP.table("PARI").get))  # "EON": PARI 0 = Even
+DATA_BITS = {int(k): v for k, v in MAP.table("DATA").items()}          # 7 -> 0, 8 -> 1
+STOP_BITS = {int(k): v for k, v in MAP.table("STOP").items()}          # 1 -> 0, 2 -> 1
+CMND = MAP.table("CMND")
+CMD_RESET, CMD_MANUAL, CMD_AUTOTUNE, CMD_CALIBRATE = (
+    CMND[k] for k in ("RESET", "MANUAL", "AUTOTUNE", "CALIBRATE"))
+MODE = MAP.table("MODE")
+MODE_NORMAL, MODE_CAL, MODE_AT, MODE_MANUAL = (
+    MODE[k] for k in ("NORMAL", "CALIBRATION", "AUTOTUNE", "MANUAL"))
+EROR = MAP.table("EROR")
+EROR_FUNC, EROR_ADDR, EROR_RO, EROR_RANGE = (
+    EROR[k] for k in ("BAD_FUNCTION", "BAD_ADDRESS", "READ_ONLY", "OUT_OF_RANGE"))
+ALFN_DEHI = MAP.code("ALFN", "DEHI")
+A = {r.name: r.addr for r in MAP.registers}
 AUTOTUNE_S = 120.0                 # simulated seconds MODE shows auto-tuning (choice)
-MAX_WORDS = 80                     # Example 6 reads 0x50 words (manual table: 79), see 3.3
+MAX_WORDS = MAP.function(3)["max_words"]       # Example 6 reads 0x50 words (manual: 79)
+MAX_WRITE = MAP.function(16)["max_words"]      # "No. of words (1-79)", byte count 2..158
+LAST = MAP.function(3)["window"][1]
+ALIAS_LO, ALIAS_HI = MAP.function(3)["alias_window"]
 LOCK_FREE = {"LOCK", "CMND", "JOB1", "JOB2", "JOB3"}   # writable whatever LOCK is (choice)
 
 
@@ -65,7 +43,8 @@ class Fdc100(Device):
 
     KIND = "fdc100"
     REGS = REGS
-    FUNCTIONS = (3, 6, 16)
+    MAP = MAP
+    FUNCTIONS = MAP.function_codes
 
     def __init__(self, addr, line, rng):
         super().__init__(addr, line, rng)
@@ -73,26 +52,18 @@ class Fdc100(Device):
         self.mode = MODE_NORMAL
         self.at_left = 0.0
         self.eror_set = False
-        self.words[39] = addr
+        self.words[A["ADDR"]] = addr
         if line.baud in BAUDS:
-            self.words[40] = BAUDS.index(line.baud)
-        self.words[41] = 1 if line.data_bits == 8 else 0
-        self.words[42] = PARITY.index(line.parity)
-        self.words[43] = 1 if line.stop_bits == 2 else 0
+            self.words[A["BAUD"]] = BAUDS.index(line.baud)
+        self.words[A["DATA"]] = DATA_BITS[line.data_bits]
+        self.words[A["PARI"]] = PARITY.index(line.parity)
+        self.words[A["STOP"]] = STOP_BITS[line.stop_bits]
 
     # ----- encoding -----
-    def linear_input(self) -> bool:
-        """INPT codes 0..10 are thermocouples/RTDs (non-linear), 11 and up linear (L)."""
-        return self.words[4] > 10
-
     def scaling(self, reg):
-        if reg.scale in ("S4", "S6", "S7"):
-            fixed = (reg.scale == "S6" and self.words[33] == 1)
-            d = self.words[6] if self.linear_input() and not fixed else 1
-            return min(d, 3), E
-        if reg.scale == "S5":
-            return (min(self.words[6], 3) if self.linear_input() else 1), 0
-        return FIXED[reg.scale]
+        """Scale classes of the map: *4..*7 follow INPT/DP (and ALFN for *6), the rest fixed."""
+        w = self.words
+        return MAP.scaling(reg.name, {"INPT": w[A["INPT"]], "DP": w[A["DP"]], "ALFN": w[A["ALFN"]]})
 
     def value(self, name):
         reg = self.by_name[name]
@@ -106,11 +77,11 @@ class Fdc100(Device):
         return MAX_WORDS
 
     def max_write(self, fc):
-        return 79                        # "No. of words (1-79)", byte count 2..158
+        return MAX_WRITE
 
     def readable(self, fc, start, count):
         end = start + count - 1
-        return end <= 79 or (start >= 128 and end <= 131)
+        return end <= LAST or (start >= ALIAS_LO and end <= ALIAS_HI)
 
     def writable_reg(self, addr):
         return super().writable_reg(ALIASES.get(addr, addr))
@@ -121,8 +92,8 @@ class Fdc100(Device):
             access = "RW" if self.mode == MODE_MANUAL else "R"
         elif access == "CAL":
             access = "RW" if self.mode == MODE_CAL else "R"
-        locked = self.words[3] and reg.name not in LOCK_FREE and (
-            reg.name != "SP1" or self.words[3] >= 3)
+        lock = self.words[A["LOCK"]]
+        locked = lock and reg.name not in LOCK_FREE and (reg.name != "SP1" or lock >= 3)
         if access == "R" or locked:
             raise ModbusError(ILLEGAL_VALUE, f"{reg.name} read-only or locked")
         if not self.in_range(reg, raw):
@@ -130,60 +101,60 @@ class Fdc100(Device):
 
     def in_range(self, reg, raw):
         if reg.name == "SP1":
-            return self.words[9] <= raw <= self.words[10]
+            return self.words[A["SP1L"]] <= raw <= self.words[A["SP1H"]]
         if reg.name == "CMND":
-            return raw in (CMD_RESET, CMD_MANUAL, CMD_AUTOTUNE, CMD_CALIBRATE)
+            return raw in CMND.values()
         return super().in_range(reg, raw)
 
     def on_exception(self, code):
         """EROR (69) gets the communication error of the exception (Table A.1)."""
         if code == 1:
-            self.words[69] = EROR_FUNC
+            self.words[A["EROR"]] = EROR_FUNC
         elif code == 2:
-            self.words[69] = EROR_ADDR
+            self.words[A["EROR"]] = EROR_ADDR
         elif not self.eror_set:
-            self.words[69] = EROR_RANGE
+            self.words[A["EROR"]] = EROR_RANGE
         self.eror_set = False
 
     def write_block(self, fc, start, values):
-        if not (start + len(values) - 1 <= 79 or (start >= 128 and start + len(values) - 1 <= 131)):
+        if not self.readable(16, start, len(values)):
             raise ModbusError(ILLEGAL_ADDRESS, f"write {start}+{len(values)}")
         try:
             super().write_block(fc, start, values)
         except ModbusError as err:
             if err.code == ILLEGAL_VALUE:
-                self.words[69] = EROR_RO if "read-only" in str(err) else EROR_RANGE
+                self.words[A["EROR"]] = EROR_RO if "read-only" in str(err) else EROR_RANGE
                 self.eror_set = True
             raise
 
     # ----- live words and aliases -----
     def word(self, addr):
         addr = ALIASES.get(addr, addr)
-        if addr == 64:
+        if addr == A["PV"]:
             return self.eng_to_word("PV", self.loop.plant.temp + self.value("SHIF"))
-        if addr == 65:
-            return self.words[0]
-        if addr == 66:
+        if addr == A["SV"]:
+            return self.words[A["SP1"]]
+        if addr == A["MV1"]:
             return int(round(self.loop.output * 100))
-        if addr == 70:
+        if addr == A["MODE"]:
             return (self.mode << 8) | self.alarm()
         return self.words.get(addr, 0)
 
     def store(self, addr, word):
         addr = ALIASES.get(addr, addr)
-        if addr == 64:                    # control 'set' of PV moves the process
+        if addr == A["PV"]:               # control 'set' of PV moves the process
             self.loop.plant.temp = self.to_eng(self.by_name["PV"], word) - self.value("SHIF")
-        elif addr == 66:
+        elif addr == A["MV1"]:
             self.loop.manual = word / 100.0 if self.mode == MODE_MANUAL else None
             self.loop.output = word / 100.0
-        elif addr == 70:
+        elif addr == A["MODE"]:
             self.mode = word >> 8
         else:
             self.words[addr] = word & 0xFFFF
 
     def alarm(self) -> int:
         """Alarm status (low byte of MODE). Modelled: ALFN 2 = deviation high (PV > SV + SP3)."""
-        if self.words[33] == 2:
+        if self.words[A["ALFN"]] == ALFN_DEHI:
             return int(self.value("PV") > self.value("SP1") + self.value("SP3"))
         return 0
 
@@ -194,7 +165,7 @@ class Fdc100(Device):
         if reg.name != "CMND":
             return
         if word == CMD_RESET:             # like the R key: back to automatic control
-            self.mode, self.loop.manual, self.words[69] = MODE_NORMAL, None, 0
+            self.mode, self.loop.manual, self.words[A["EROR"]] = MODE_NORMAL, None, 0
         elif word == CMD_MANUAL:
             self.mode, self.loop.manual = MODE_MANUAL, self.loop.output
         elif word == CMD_AUTOTUNE:
@@ -202,11 +173,14 @@ class Fdc100(Device):
         elif word == CMD_CALIBRATE:
             self.mode = MODE_CAL
 
-    def line_matches(self):
+    def char_format(self):
+        """(baud, data bits, parity, stop bits) from its BAUD, DATA, PARI and STOP registers."""
         w = self.words
-        return (w[40] < len(BAUDS) and BAUDS[w[40]] == self.line.baud
-                and w[42] <= 2 and PARITY[w[42]] == self.line.parity
-                and (8 if w[41] == 1 else 7) == self.line.data_bits)
+        inv = lambda table, code: next((k for k, v in table.items() if v == code), None)  # noqa: E731
+        return (BAUDS[w[A["BAUD"]]] if w[A["BAUD"]] < len(BAUDS) else -1,
+                inv(DATA_BITS, w[A["DATA"]]) or -1,
+                PARITY[w[A["PARI"]]] if w[A["PARI"]] < len(PARITY) else "?",
+                inv(STOP_BITS, w[A["STOP"]]) or -1)
 
     # ----- dynamics -----
     def tick(self, dt):
@@ -214,16 +188,16 @@ class Fdc100(Device):
             self.at_left -= dt
             if self.at_left <= 0:
                 self.mode = MODE_NORMAL
-        self.loop.run(dt, self.value("SP1"), band=self.value("PB"), ti=self.words[15],
+        self.loop.run(dt, self.value("SP1"), band=self.value("PB"), ti=self.words[A["TI"]],
                       td=self.value("TD"), bias=0.0, hyst=self.value("O1HY"),
-                      cooling=self.words[17] == 1)
+                      cooling=self.words[A["OUT1"]] == 1)
 
     def power_cycle(self):
         """Volatile state: mode (manual, auto-tune, calibration unlock), error code, output."""
         self.loop.restart()
         self.mode = MODE_NORMAL
-        self.words[69] = 0
-        self.words[72] = 0
+        self.words[A["EROR"]] = 0
+        self.words[A["CMND"]] = 0
 
     def describe(self):
         return {**super().describe(), "pv": round(self.loop.plant.temp, 3),

@@ -1,4 +1,4 @@
-"""MT-S9 counter/meter: DEVICES.md section 2 (RTU, RTU without CRC, ASCII).
+"""MT-S9 counter/meter: maps/mts9.json (RTU, RTU without CRC, ASCII).
 
 Real Data and Display Data are signed 32-bit values stored LOW word first (the FC16 example's
 CRC 53 FC proves it). The meter counts at `rate` counts per simulated second, shows Decimal Set,
@@ -7,24 +7,19 @@ Author. The manual documents no exceptions, defaults or broadcast; the choices a
 """
 from __future__ import annotations
 
-from .regmap import ILLEGAL_VALUE, Device, ModbusError, Reg
+from .regmap import ANY_LINE, ILLEGAL_VALUE, Device, ModbusError, load_map, regs_from_map
 
-BAUDS = (2400, 4800, 9600, 14400, 19200, 28800, 38400, 57600, 76800, 115200)
-TYPES = {"ascii": 0, "rtu": 1, "nocrc": 2}
-DIGITS = {4: (-1999, 9999), 6: (-199999, 999999), 8: (-19999999, 99999999)}
-# Author level needed to write each set-up register (cumulative reading of DEVICES.md 2.7).
-AUTHOR_LEVEL = {"DECIMAL": 1, "ID": 2, "BAUD": 3, "TYPE": 4}
-
-REGS = (
-    Reg(0, "Real Data", signed=True, words=2, aliases=("REAL", "REALDATA", "VALUE")),
-    Reg(2, "Display Data", access="R", signed=True, words=2, aliases=("DISPLAY",)),
-    Reg(4, "Over-Flow Sign", access="R", lo=0, hi=1, aliases=("OVERFLOW", "OVER-FLOW")),
-    Reg(5, "Decimal Set", lo=0, hi=7, aliases=("DECIMAL",)),
-    Reg(6, "ID Address Set", lo=1, hi=247, default=1, aliases=("ID", "ADDR")),
-    Reg(7, "Baud Rate Set", lo=0, hi=9, default=2, aliases=("BAUD",)),
-    Reg(8, "Type", lo=0, hi=2, default=1, aliases=("FRAMING_CODE",)),
-    Reg(9, "Author", lo=0, hi=5, default=0, aliases=("AUTH",)),
-)
+MAP = load_map("mts9")
+REGS = regs_from_map(MAP)
+BAUDS = tuple(sorted(MAP.bauds(), key=MAP.bauds().get))         # index = code
+TYPES = {k.lower(): v for k, v in MAP.table("TYPE").items()}     # ascii 0, rtu 1, nocrc 2
+DIGITS = {int(k): tuple(v) for k, v in MAP.table("DIGITS").items()}
+DECIMALS_MAX = {int(k): v for k, v in MAP.table("DECIMALS_MAX").items()}
+# Author level needed to write each set-up register (cumulative reading of the Author matrix).
+AUTHOR_LEVEL = {MAP.reg(k).name: v for k, v in MAP.table("AUTHOR").items()}
+A_REAL, A_DISPLAY, A_OVER, A_ID, A_BAUD, A_TYPE, A_AUTHOR = (
+    MAP.reg(n).addr for n in ("REAL", "DISPLAY", "OVERFLOW", "ID", "BAUD", "TYPE", "AUTHOR"))
+LAST = MAP.function(3)["window"][1]
 
 
 class MtS9(Device):
@@ -32,24 +27,25 @@ class MtS9(Device):
 
     KIND = "mts9"
     REGS = REGS
-    FUNCTIONS = (3, 6, 16)
+    MAP = MAP
+    FUNCTIONS = MAP.function_codes
 
     def __init__(self, addr, line, rng):
         super().__init__(addr, line, rng)
         self.rate = 0.0             # counts per simulated second
         self.digits = 6
         self.frac = 0.0
-        self.words[6] = addr
-        self.words[8] = TYPES[line.framing]
+        self.words[A_ID] = addr
+        self.words[A_TYPE] = TYPES[line.framing]
         if line.baud in BAUDS:
-            self.words[7] = BAUDS.index(line.baud)
+            self.words[A_BAUD] = BAUDS.index(line.baud)
 
     def option(self, name, value):
         key = name.lower()
         if key == "framing":
             if value not in TYPES:
                 raise ValueError(f"mts9 framing must be one of {sorted(TYPES)}")
-            self.words[8] = TYPES[value]
+            self.words[A_TYPE] = TYPES[value]
         elif key == "rate":
             self.rate = float(value)
         elif key == "digits":
@@ -62,7 +58,7 @@ class MtS9(Device):
 
     # ----- live words -----
     def real(self) -> int:
-        return self.by_name["REAL"].from_words([self.words[0], self.words[1]])
+        return self.by_name["REAL"].from_words([self.words[A_REAL], self.words[A_REAL + 1]])
 
     def display(self) -> tuple[int, int]:
         """(display value, overflow flag): the value is clamped to what the digits can show."""
@@ -71,25 +67,25 @@ class MtS9(Device):
         return max(lo, min(hi, value)), int(not lo <= value <= hi)
 
     def word(self, addr):
-        if addr in (2, 3):
+        if addr in (A_DISPLAY, A_DISPLAY + 1):
             words = self.by_name["DISPLAY"].to_words(self.display()[0])
-            return words[addr - 2]
-        if addr == 4:
+            return words[addr - A_DISPLAY]
+        if addr == A_OVER:
             return self.display()[1]
         return super().word(addr)
 
     def readable(self, fc, start, count):
-        return fc == 3 and start + count - 1 <= 9
+        return fc == 3 and start + count - 1 <= LAST
 
     # ----- writes -----
     def in_range(self, reg, raw):
         if reg.name == "Decimal Set":
-            return 0 <= raw <= self.digits - 1
+            return 0 <= raw <= DECIMALS_MAX[self.digits]
         return super().in_range(reg, raw)
 
     def check_write(self, reg, addr, raw):
-        need = next((lvl for key, lvl in AUTHOR_LEVEL.items() if self.by_name[key] is reg), 0)
-        if self.words[9] < need:
+        need = AUTHOR_LEVEL.get(reg.name, 0)
+        if self.words[A_AUTHOR] < need:
             raise ModbusError(ILLEGAL_VALUE, f"{reg.name} needs Author >= {need}")
         super().check_write(reg, addr, raw)
 
@@ -99,10 +95,15 @@ class MtS9(Device):
         if reg.name == "Real Data":
             self.frac = 0.0
 
-    def line_matches(self):
-        w = self.words
-        return w[7] < len(BAUDS) and BAUDS[w[7]] == self.line.baud and \
-            w[8] == TYPES[self.line.framing]
+    def char_format(self):
+        """Its Baud Rate Set; the character format is not in the manual: the line's."""
+        code = self.words[A_BAUD]
+        return (BAUDS[code] if code < len(BAUDS) else None), None, None, None
+
+    def hears(self, master=None):
+        if master == ANY_LINE:
+            return True
+        return self.words[A_TYPE] == TYPES[self.line.framing] and super().hears(master)
 
     # ----- dynamics -----
     def tick(self, dt):
@@ -118,7 +119,7 @@ class MtS9(Device):
 
     def power_cycle(self):
         """Author falls back to 0 (writes locked) at power-up; the count is retained (choice)."""
-        self.words[9] = 0
+        self.words[A_AUTHOR] = 0
         self.frac = 0.0
 
     def describe(self):

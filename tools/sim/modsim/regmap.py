@@ -1,15 +1,28 @@
 """Shared base of the device models: a register table with access, range and scaling metadata,
 the Modbus PDU handling for FC 03/04/06/16, and the engineering-unit conversions.
 
-Each model (mvd94.py, mts9.py, fdc100.py) declares its registers and overrides only what its
-manual makes different: address windows, access rules, exception choices, side effects.
+The registers, code tables, windows and scales come from the register maps in maps/*.json
+(maps/README.md), loaded by maps/mbmap.py: no register table lives here. Each model
+(mvd94.py, mts9.py, fdc100.py) overrides only what its manual makes different in behaviour:
+address windows, access rules, exception choices, side effects.
 """
 from __future__ import annotations
 
+import os
 import struct
+import sys
 from dataclasses import dataclass, field
 
+# maps/ of this checkout (tools/sim/modsim -> the repository root), or $MBFB_MAPS.
+MAPS_DIR = os.environ.get("MBFB_MAPS") or os.path.join(
+    os.path.dirname(os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))),
+    "maps")
+if MAPS_DIR not in sys.path:
+    sys.path.insert(0, MAPS_DIR)
+import mbmap  # noqa: E402  (maps/mbmap.py)
+
 ILLEGAL_FUNCTION, ILLEGAL_ADDRESS, ILLEGAL_VALUE = 1, 2, 3
+ANY_LINE = "any"        # Device.hears: no serial line at all (Modbus/TCP)
 
 
 class ModbusError(Exception):
@@ -51,6 +64,29 @@ class Reg:
         return [(value >> (16 * i)) & 0xFFFF for i in range(self.words)]
 
 
+def load_map(device: str):
+    """The device's register map (mbmap.Map) from maps/."""
+    return mbmap.load(device, MAPS_DIR)
+
+
+ACCESS = {"R": "R", "RW": "RW", "RW in manual mode": "MAN", "RW after CMND = 0x682D": "CAL"}
+
+
+def regs_from_map(m) -> tuple:
+    """Reg objects of a map: access R/RW (MAN, CAL: conditional, see fdc100.py), raw range,
+    sign, scale key, the index codes of its table, the default, words and aliases."""
+    out = []
+    for r in m.registers:
+        if r.access not in ACCESS:
+            raise mbmap.MapError(f"{m.device} {r.name}: access {r.access!r} unknown to the simulator")
+        codes = dict(m.table(r.codes)) if r.codes and r.scale in ("code", "dpcode") else {}
+        lo, hi = r.range if r.range is not None else (None, None)
+        out.append(Reg(r.addr, r.name, ACCESS[r.access], lo=lo, hi=hi, signed=r.signed,
+                       scale=r.scale, codes=codes, default=r.default, words=r.words,
+                       aliases=r.aliases))
+    return tuple(out)
+
+
 class Device:
     """A Modbus slave model. Subclasses set KIND, REGS and FUNCTIONS and override hooks."""
 
@@ -70,7 +106,7 @@ class Device:
         self.words: dict[int, int] = {}
         self.load_defaults()
         self.stats = {"requests": 0, "replies": 0, "exceptions": 0, "broadcasts": 0,
-                      "ignored": 0, "faults_applied": 0}
+                      "ignored": 0, "line_mismatch": 0, "faults_applied": 0}
 
     # ----- state -----
     def load_defaults(self):
@@ -85,10 +121,25 @@ class Device:
     def tick(self, dt: float):
         """Advance the model's dynamics by dt seconds of simulated time."""
 
-    def line_matches(self) -> bool:
-        """False if the device's own comm settings no longer match the line (it then hears
-        only garbage and stays silent, like a real unit after its BAUD is changed)."""
-        return True
+    def char_format(self) -> tuple:
+        """(baud, data bits, parity, stop bits) the device speaks, from its own comm registers;
+        None where the manual does not say (the line's setting is taken). Default: the line."""
+        return self.line.baud, self.line.data_bits, self.line.parity, self.line.stop_bits
+
+    def hears(self, master: dict | None = None) -> bool:
+        """Does a frame sent by this master reach the device as sent? `master` holds the
+        character format the master's port is set to, as far as the transport can see it
+        (on a pty: baud and stop bits; parity and data bits are invisible there and taken from
+        the line, --format). None: the line itself (TCP, a real serial port). A device whose
+        settings differ hears garbage and stays silent, like a UART with framing errors."""
+        if master == ANY_LINE:
+            return True
+        seen = {"baud": self.line.baud, "data": self.line.data_bits,
+                "parity": self.line.parity, "stop": self.line.stop_bits}
+        if master:
+            seen.update(master)
+        own = dict(zip(("baud", "data", "parity", "stop"), self.char_format()))
+        return all(v is None or v == seen[k] for k, v in own.items())
 
     # ----- register access by name/number (control protocol, start-up options) -----
     def lookup(self, key) -> Reg:

@@ -6,6 +6,7 @@ import asyncio
 import struct
 
 from . import frames
+from .regmap import ANY_LINE
 
 
 class TcpLine:
@@ -55,7 +56,7 @@ class TcpLine:
                     self.bus.record("rx", head + pdu, "bad protocol id")
                     continue
                 self.bus.record("rx", head + pdu)
-                reply = self.bus.request(unit, pdu)
+                reply = self.bus.request(unit, pdu, ANY_LINE)
                 if reply is None:
                     continue
                 out, delay, info = frames.mbap(tid, reply.addr, reply.pdu), 0.0, ""

@@ -18,8 +18,10 @@ from . import frames
 from .ptyline import PtyLine
 
 LONG_GAP = 0.05   # an incomplete frame (by its function's length) is dropped after this silence
-BAUD_CONST = {b: getattr(termios, f"B{b}") for b in (2400, 4800, 9600, 19200, 38400, 57600,
-                                                     115200) if hasattr(termios, f"B{b}")}
+BAUD_CONST = {b: getattr(termios, f"B{b}") for b in (
+    50, 75, 110, 134, 150, 200, 300, 600, 1200, 1800, 2400, 4800, 9600, 19200, 38400, 57600,
+    115200, 230400, 460800, 500000, 576000, 921600, 1000000) if hasattr(termios, f"B{b}")}
+SPEED_BAUD = {v: k for k, v in BAUD_CONST.items()}
 
 
 class SerialLine:
@@ -64,12 +66,17 @@ class SerialLine:
             # Raw mode before any master opens the pty: no echo, no line editing, no CR/LF
             # translation. The slave end stays open here so the pty survives masters that
             # close and reopen it (otherwise reads on our side fail with EIO).
+            # The line's speed and stop bits too: a master that sets nothing is on the line.
             tty.setraw(self.slave_fd)
             attrs = termios.tcgetattr(self.slave_fd)
             speed = BAUD_CONST.get(self.line.baud)
             if speed is not None:
                 attrs[4] = attrs[5] = speed
-                termios.tcsetattr(self.slave_fd, termios.TCSANOW, attrs)
+            if self.line.stop_bits == 2:
+                attrs[2] |= termios.CSTOPB
+            else:
+                attrs[2] &= ~termios.CSTOPB
+            termios.tcsetattr(self.slave_fd, termios.TCSANOW, attrs)
             self.path = os.ttyname(self.slave_fd)
             self._relink()
         else:
@@ -206,7 +213,7 @@ class SerialLine:
             self.bus.bad_frame()
             return
         self.bus.record("rx", frame)
-        reply = self.bus.request(addr, pdu)
+        reply = self.bus.request(addr, pdu, self.master_format())
         if reply is None:
             return
         framing = self.line.framing
@@ -221,6 +228,21 @@ class SerialLine:
             self.bus.record("tx", b"", "drop")
             return
         asyncio.ensure_future(self._send(out, delay, info, self.generation, reply.sent))
+
+    def master_format(self) -> dict | None:
+        """The master's port settings as far as our own pty shows them: tcgetattr on the pty
+        master returns the termios the master set on its end (Linux): speed and stop bits.
+        Parity and data bits cannot be seen (a pty drops PARENB and CS7), so Device.hears
+        takes them from the line. None on a real serial port (its UART does the real thing)
+        and through ptyline (ptyline checks both of its sides)."""
+        if self.device is not None or self.ptyline is not None or self.fd is None:
+            return None
+        try:
+            attrs = termios.tcgetattr(self.fd)
+        except termios.error:
+            return None
+        return {"baud": SPEED_BAUD.get(attrs[5], -1),
+                "stop": 2 if attrs[2] & termios.CSTOPB else 1}
 
     # ----- transmit: whole frame, or paced at the character time with a turnaround -----
     def line_stats(self) -> dict:

@@ -32,6 +32,7 @@ typedef struct {
 /* Counters of one direction (and, summed, of the whole line). */
 typedef struct {
     uint64_t frames, bytes, collisions, collided_bytes, dropped_bytes, intra_gaps;
+    uint64_t format_errors; /* bytes garbled: a side's port settings differ from the line */
     int64_t busy_ns;
 } pl_counts;
 

@@ -33,6 +33,7 @@ typedef struct {
     options opt;
     pl_line line;
     pl_side side[2]; /* index = the direction whose bytes it sends: M, S */
+    pl_settings settings; /* the line's speed and stop bits, checked on both sides */
     pl_report_info info;
     FILE *log;
 } ptyline;
@@ -186,6 +187,14 @@ static void receive(ptyline *p, int d, int64_t now)
         long n = pl_side_read(&p->side[d], buf, room < sizeof buf ? room : sizeof buf);
         if (n <= 0)
             return;
+        /* A sender or receiver whose port is set to another speed or stop bits than
+         * the line gets what a UART gives: framing errors, which a raw Linux tty
+         * delivers as NUL bytes.  Checked per read, as a peer may change its port. */
+        if (!pl_side_settings_ok(&p->side[d], &p->settings) ||
+            (p->side[!d].up && !pl_side_settings_ok(&p->side[!d], &p->settings))) {
+            memset(buf, 0, (size_t)n);
+            p->line.dir[d].format_errors += (uint64_t)n;
+        }
         for (long i = 0; i < n; i++)
             pl_line_send(&p->line, d, buf[i], now);
     }
@@ -292,8 +301,9 @@ int main(int argc, char **argv)
     }
     int rc = 1;
     p.side[0].fd = p.side[1].fd = -1;
-    if (pl_side_open(&p.side[0], 'M', p.opt.link[0]) == 0 &&
-        pl_side_open(&p.side[1], 'S', p.opt.link[1]) == 0) {
+    pl_settings_of(p.opt.baud, p.opt.format, &p.settings);
+    if (pl_side_open(&p.side[0], 'M', p.opt.link[0], &p.settings) == 0 &&
+        pl_side_open(&p.side[1], 'S', p.opt.link[1], &p.settings) == 0) {
         p.info = (pl_report_info){.format = p.opt.format, .seed = p.opt.seed,
                                   .turn_lo_ms = p.opt.turn_lo, .turn_hi_ms = p.opt.turn_hi,
                                   .t0_ns = now_ns(), .side = {&p.side[0], &p.side[1]}};

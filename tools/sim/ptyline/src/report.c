@@ -15,11 +15,12 @@ static void put_counts(FILE *f, const char *name, const pl_counts *c, int64_t bu
     fprintf(f,
             "  \"%s\": {\"frames\": %llu, \"bytes\": %llu, \"busy_us\": %.3f, "
             "\"utilisation\": %.6f, \"collisions\": %llu, \"collided_bytes\": %llu, "
-            "\"dropped_bytes\": %llu, \"intra_gaps_over_1_5\": %llu},\n",
+            "\"dropped_bytes\": %llu, \"intra_gaps_over_1_5\": %llu, \"format_errors\": %llu},\n",
             name, (unsigned long long)c->frames, (unsigned long long)c->bytes, us(busy_ns),
             elapsed_ns > 0 ? (double)busy_ns / (double)elapsed_ns : 0.0,
             (unsigned long long)c->collisions, (unsigned long long)c->collided_bytes,
-            (unsigned long long)c->dropped_bytes, (unsigned long long)c->intra_gaps);
+            (unsigned long long)c->dropped_bytes, (unsigned long long)c->intra_gaps,
+            (unsigned long long)c->format_errors);
 }
 
 /* "<pre>min_us": x, "<pre>avg_us": y, "<pre>max_us": z (null when empty) */
@@ -52,6 +53,7 @@ static void put_all(FILE *f, const pl_line *l, const pl_report_info *in, int64_t
     t.collided_bytes += s->collided_bytes;
     t.dropped_bytes += s->dropped_bytes;
     t.intra_gaps += s->intra_gaps;
+    t.format_errors += s->format_errors;
 
     fprintf(f, "{\n  \"version\": 1, \"baud\": %ld, \"format\": \"%s\", \"char_bits\": %d, "
                "\"paced\": %s,\n",

@@ -18,7 +18,7 @@
 
 #define CHECK_EVERY_NS 10000000
 
-static int make_raw(int fd)
+static int make_raw(int fd, const pl_settings *line)
 {
     struct termios t;
     if (tcgetattr(fd, &t) != 0)
@@ -27,7 +27,44 @@ static int make_raw(int fd)
     t.c_cflag |= CLOCAL | CREAD;
     t.c_cc[VMIN] = 1;
     t.c_cc[VTIME] = 0;
+    if (line != NULL && line->check) {
+        cfsetispeed(&t, (speed_t)line->speed);
+        cfsetospeed(&t, (speed_t)line->speed);
+        if (line->stop2)
+            t.c_cflag |= CSTOPB;
+        else
+            t.c_cflag &= ~(tcflag_t)CSTOPB;
+    }
     return tcsetattr(fd, TCSANOW, &t);
+}
+
+void pl_settings_of(long baud, const char *format, pl_settings *out)
+{
+    static const struct { long baud; speed_t speed; } speeds[] = {
+        {50, B50}, {75, B75}, {110, B110}, {134, B134}, {150, B150}, {200, B200},
+        {300, B300}, {600, B600}, {1200, B1200}, {1800, B1800}, {2400, B2400},
+        {4800, B4800}, {9600, B9600}, {19200, B19200}, {38400, B38400}, {57600, B57600},
+        {115200, B115200}, {230400, B230400}, {460800, B460800}, {500000, B500000},
+        {576000, B576000}, {921600, B921600}, {1000000, B1000000}, {1152000, B1152000},
+        {1500000, B1500000}, {2000000, B2000000}, {2500000, B2500000},
+        {3000000, B3000000}, {3500000, B3500000}, {4000000, B4000000}};
+    *out = (pl_settings){0};
+    for (size_t i = 0; i < sizeof speeds / sizeof speeds[0]; i++)
+        if (speeds[i].baud == baud) {
+            out->check = 1;
+            out->speed = (unsigned)speeds[i].speed;
+        }
+    size_t n = strlen(format);
+    out->stop2 = n > 0 && format[n - 1] == '2';
+}
+
+int pl_side_settings_ok(const pl_side *s, const pl_settings *line)
+{
+    struct termios t;
+    if (!line->check || tcgetattr(s->fd, &t) != 0)
+        return 1;
+    return cfgetospeed(&t) == (speed_t)line->speed && cfgetispeed(&t) == (speed_t)line->speed &&
+           ((t.c_cflag & CSTOPB) != 0) == (line->stop2 != 0);
 }
 
 static int make_link(const pl_side *s)
@@ -44,7 +81,7 @@ static int make_link(const pl_side *s)
     return symlink(s->path, s->link);
 }
 
-int pl_side_open(pl_side *s, char name, const char *link)
+int pl_side_open(pl_side *s, char name, const char *link, const pl_settings *line)
 {
     memset(s, 0, offsetof(pl_side, out));
     s->name = name;
@@ -52,13 +89,13 @@ int pl_side_open(pl_side *s, char name, const char *link)
     s->fd = -1;
     s->fd = posix_openpt(O_RDWR | O_NOCTTY);
     if (s->fd < 0 || grantpt(s->fd) != 0 || unlockpt(s->fd) != 0 ||
-        ptsname_r(s->fd, s->path, sizeof s->path) != 0 || make_raw(s->fd) != 0) {
+        ptsname_r(s->fd, s->path, sizeof s->path) != 0 || make_raw(s->fd, NULL) != 0) {
         fprintf(stderr, "mbfb-ptyline: pty %c: %s\n", name, strerror(errno));
         return -1;
     }
     /* Raw slave termios (no echo, no CR/LF mapping) stays for later openers. */
     int slave = open(s->path, O_RDWR | O_NOCTTY);
-    if (slave < 0 || make_raw(slave) != 0) {
+    if (slave < 0 || make_raw(slave, line) != 0) {
         fprintf(stderr, "mbfb-ptyline: %s: %s\n", s->path, strerror(errno));
         return -1;
     }

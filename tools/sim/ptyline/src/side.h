@@ -19,9 +19,25 @@ typedef struct {
     uint8_t out[PL_SIDE_OUT_MAX];
 } pl_side;
 
-/* Creates the pty (raw on both ends) and the optional symlink.  0, or -1 with
- * errno and a message on stderr. */
-int pl_side_open(pl_side *s, char name, const char *link);
+/* The character format of the line as a pty can show it: Linux ptys keep the
+ * speed and CSTOPB a peer sets but always report CS8 without parity. */
+typedef struct {
+    int check;            /* 0: the baud has no termios constant, nothing is checked */
+    unsigned speed;       /* speed_t of the baud */
+    int stop2;            /* two stop bits */
+} pl_settings;
+
+/* Fills `out` for a baud and a format such as "8N2" (stop bits = its last digit). */
+void pl_settings_of(long baud, const char *format, pl_settings *out);
+
+/* Creates the pty (raw on both ends, the slave set to the line's speed and stop
+ * bits, so a peer that sets nothing is on the line) and the optional symlink.
+ * 0, or -1 with errno and a message on stderr. */
+int pl_side_open(pl_side *s, char name, const char *link, const pl_settings *line);
+
+/* Does the peer's port (tcgetattr on the pty master reads the slave's termios)
+ * match the line?  1 also when nothing can be checked. */
+int pl_side_settings_ok(const pl_side *s, const pl_settings *line);
 
 /* Closes the pty and removes the symlink if it still points to it. */
 void pl_side_close(pl_side *s);

@@ -1,0 +1,151 @@
+#!/usr/bin/env python3
+"""Checks the ST blocks' named constants against the register maps (rule: maps/README.md,
+"Constants in ST").
+
+    python3 maps/check_st.py [FILE_OR_DIR ...]     # default: st_src/ of this checkout
+
+Every `VAR CONSTANT` / `VAR_GLOBAL CONSTANT` entry whose name starts with MVD_, MTS_ or FDC_
+must equal what its device's map says. Exit 0 when all agree; 1 on any difference, on a
+prefixed constant the rule does not know, or when no prefixed constant is found at all (so the
+check cannot pass empty); 2 on bad arguments or an unreadable map.
+"""
+from __future__ import annotations
+
+import argparse
+import glob
+import os
+import re
+import sys
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, HERE)
+import mbmap  # noqa: E402
+
+PREFIXES = {"MVD": "mvd94", "MTS": "mts9", "FDC": "fdc100"}
+COMMENT = re.compile(r"\(\*.*?\*\)|//[^\n]*", re.S)
+BLOCK = re.compile(r"\bVAR(?:_GLOBAL)?\s+CONSTANT\b(.*?)\bEND_VAR\b", re.S | re.I)
+ENTRY = re.compile(r"([A-Za-z_][A-Za-z0-9_]*)\s*:\s*([A-Za-z_][A-Za-z0-9_]*)\s*:=\s*([^;]+);")
+FC_MAX = re.compile(r"FC0?(\d+)_MAX_WORDS$")
+
+
+def st_int(text: str) -> int:
+    """An IEC integer literal: 123, -5, 16#FF, 2#1010, 8#17, UINT#16#10, 1_000."""
+    t = text.strip().replace("_", "")
+    neg = t.startswith("-")
+    t = t.lstrip("+-")
+    parts = t.split("#")
+    if len(parts) == 3:                     # TYPE#BASE#DIGITS
+        parts = parts[1:]
+    if len(parts) == 2 and not parts[0].isdigit():   # TYPE#DIGITS
+        parts = [parts[1]]
+    value = int(parts[1], int(parts[0])) if len(parts) == 2 else int(parts[0], 10)
+    return -value if neg else value
+
+
+def constants(paths):
+    """(file, line, name, value text) of every constant in the VAR CONSTANT blocks."""
+    out = []
+    for path in paths:
+        with open(path, encoding="utf-8", errors="replace") as fh:
+            src = fh.read()
+        clean = COMMENT.sub(lambda m: re.sub(r"[^\n]", " ", m.group(0)), src)
+        for block in BLOCK.finditer(clean):
+            for e in ENTRY.finditer(block.group(1)):
+                line = clean.count("\n", 0, block.start(1) + e.start()) + 1
+                out.append((path, line, e.group(1), e.group(3).strip()))
+    return out
+
+
+def expected(m, rest: str):
+    """What the map says for a constant name without its prefix: (value, what) or KeyError."""
+    if rest.startswith("REG_"):
+        name = rest[4:]
+        for r in m.registers:
+            if name in (mbmap.st_name(n) for n in (r.name, *r.aliases)):
+                return r.addr, f"address of {r.name}"
+        raise KeyError(f"{m.device} has no register named {name} (names as in the map, "
+                       "'_' for other characters)")
+    fc = FC_MAX.match(rest)
+    if fc:
+        f = m.function(int(fc.group(1)))
+        if "max_words" not in f:
+            raise KeyError(f"FC{int(fc.group(1)):02d} has no max_words in {m.device}.json")
+        return f["max_words"], f"FC{int(fc.group(1)):02d} max_words"
+    for kind, key in (("OFFSET_", "offset"), ("DEC_", "decimals")):
+        if rest.startswith(kind):
+            sc = m.data["scales"].get(rest[len(kind):])
+            if sc is None or not isinstance(sc.get(key, 0), int):
+                raise KeyError(f"no scale {rest[len(kind):]} with a fixed {key} in {m.device}.json")
+            return sc.get(key, 0), f"{key} of scale {rest[len(kind):]}"
+    for table in sorted(m.tables, key=len, reverse=True):
+        if rest.startswith(table + "_") and "codes" in m.tables[table]:
+            label = rest[len(table) + 1:]
+            exact = [v for k, v in m.table(table).items() if mbmap.st_name(k) == label]
+            if not exact:
+                raise KeyError(f"table {table} has no label {label} (labels as in the map, "
+                               "'_' for other characters)")
+            value = exact[0]
+            if not isinstance(value, int):
+                raise KeyError(f"table {table} entry {label} is not a number")
+            return value, f"{table} code {m.label(table, value)}"
+    raise KeyError("not a register (REG_), table code, FCnn_MAX_WORDS, OFFSET_ or DEC_ name")
+
+
+def check(paths, maps_dir=HERE, out=sys.stdout) -> int:
+    found = bad = 0
+    for path, line, name, text in constants(paths):
+        prefix, _, rest = name.partition("_")
+        if prefix.upper() not in PREFIXES:
+            continue
+        found += 1
+        where = f"{os.path.relpath(path)}:{line}: {name}"
+        m = mbmap.load(PREFIXES[prefix.upper()], maps_dir)
+        try:
+            want, what = expected(m, rest.upper())
+        except KeyError as err:
+            print(f"{where}: unknown to {m.device}.json: {str(err).strip(chr(34))}", file=out)
+            bad += 1
+            continue
+        try:
+            value = st_int(text)
+        except ValueError:
+            print(f"{where}: value {text!r} is not an integer literal", file=out)
+            bad += 1
+            continue
+        if value != want:
+            print(f"{where} = {value} (0x{value & 0xFFFF:04X}), but {m.device}.json says {want} "
+                  f"(0x{want & 0xFFFF:04X}, {what})", file=out)
+            bad += 1
+        else:
+            print(f"{where} = {value}: ok ({what})", file=out)
+    if found == 0:
+        print("check_st: no MVD_/MTS_/FDC_ constant found in VAR CONSTANT blocks of "
+              + ", ".join(os.path.relpath(p) for p in paths), file=out)
+        return 1
+    print(f"check_st: {found} constants, {bad} differ from the maps", file=out)
+    return 1 if bad else 0
+
+
+def main(argv=None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("paths", nargs="*", help="ST files or folders (default: st_src/)")
+    p.add_argument("--maps", default=HERE, help="folder of the map files (default: maps/)")
+    args = p.parse_args(argv)
+    paths = []
+    for item in args.paths or [os.path.join(os.path.dirname(HERE), "st_src")]:
+        if os.path.isdir(item):
+            paths += sorted(glob.glob(os.path.join(item, "*.st")))
+        elif os.path.isfile(item):
+            paths.append(item)
+        else:
+            print(f"check_st: {item}: no such file or folder", file=sys.stderr)
+            return 2
+    try:
+        return check(paths, args.maps)
+    except mbmap.MapError as err:
+        print(f"check_st: {err}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())
