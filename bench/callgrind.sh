@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Instructions per scan-side call in steady state, under callgrind.
-# usage: bench/callgrind.sh [BUILD_DIR] [N] [BENCH]  (default build-shims, 2000 cycles,
+# usage: [MODE=scan|plan] bench/callgrind.sh [BUILD_DIR] [N] [BENCH]  (default build-shims, 2000 cycles,
 #        mbfb_bench; mbfb_bench_lm_debian for Debian's libmodbus)
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -10,9 +10,9 @@ bench=${3:-mbfb_bench}
 out=$(mktemp -d)
 trap 'rm -rf "$out"' EXIT
 valgrind --tool=callgrind --callgrind-out-file="$out/cg.out" \
-    "$build/bench/$bench" scan "$n" >"$out/calls.txt" 2>"$out/valgrind.txt"
+    "$build/bench/$bench" "${MODE:-scan}" "$n" >"$out/calls.txt" 2>"$out/valgrind.txt"
 cat "$out/calls.txt"
-callgrind_annotate --inclusive=yes "$out/cg.out" >"$out/annotate.txt"
+callgrind_annotate --inclusive=yes --threshold=100 "$out/cg.out" >"$out/annotate.txt"
 # "calls: mbfb_post 4000 mbfb_poll 9000 ..." -> per-call inclusive instructions
 read -r _ p1 c1 p2 c2 p3 c3 p4 c4 <"$out/calls.txt"
 for pair in "$p1 $c1" "$p2 $c2" "$p3 $c3" "$p4 $c4"; do

@@ -8,6 +8,14 @@
  *   mbfb_bench fps SECONDS     transactions per second over a pty with an unpaced
  *                              peer, RTU / ASCII / RTU-without-CRC side by side
  *                              (interleaved rounds), at 9600 and 115200 baud settings
+ *   mbfb_bench plan N          N scan cycles of a block on a refresh plan: diag_seq
+ *                              every scan, plan_take (nothing new / a new snapshot,
+ *                              told apart by wrappers), a confirmed write every 10th
+ *                              snapshot; for callgrind (MODE=plan bench/callgrind.sh)
+ *   mbfb_bench fault N         the cost of a fault: N reads of 4 registers at 115200,
+ *                              every 10th unanswered; time and attempts per clean and
+ *                              per faulted read (response timeout, settle, resync read,
+ *                              the read again)
  */
 #include <stdlib.h>
 #include <string.h>
@@ -86,6 +94,117 @@ static void scan(int n)
            polls, takes, cancels);
 }
 
+/* Scan-side wrappers, so that callgrind tells the two cases of plan_take apart
+ * (external: no .isra clone renames them). */
+int bench_take_none(int plan, uint32_t *seq, mbfb_snap_t *s);
+int bench_take_new(int plan, uint32_t *seq, mbfb_snap_t *s);
+__attribute__((noinline)) int bench_take_none(int plan, uint32_t *seq, mbfb_snap_t *s)
+{
+    int rc = mbfb_plan_take(plan, seq, s);
+    __asm__ volatile("# none" ::: "memory"); /* no tail call, no merging: counted here */
+    return rc;
+}
+
+__attribute__((noinline)) int bench_take_new(int plan, uint32_t *seq, mbfb_snap_t *s)
+{
+    int rc = mbfb_plan_take(plan, seq, s);
+    __asm__ volatile("# new" ::: "memory"); /* no tail call: callgrind counts it here */
+    return rc;
+}
+
+/* A block on a plan, scan by scan (1 ms). */
+static void plan_scan(int n)
+{
+    static const mbfb_plan_item_t items[2] = {{3, 0, 10, MBFB_TIER_EVERY},
+                                              {3, 10, 7, MBFB_TIER_SLOW}};
+    long none = 0, fresh = 0, seqs = 0, writes = 0;
+    uint32_t seq = 0, dseq = 0;
+    mbfb_snap_t snap;
+    mbfb_diag_t diag;
+    int dev = open_dev(MBFB_FRAMING_RTU, 115200), plan = mbfb_plan_open(dev), h = 0;
+    uint16_t v[1] = {0};
+
+    mbfb_plan_set(plan, items, 2, 0, 1000);
+    while (fresh < n) {
+        uint32_t ds = mbfb_dev_diag_seq(dev);
+        seqs++;
+        if (ds != dseq) { /* as MB_Device: copy only when they changed */
+            mbfb_dev_diag(dev, &diag);
+            dseq = ds;
+        }
+        if (__atomic_load_n(&mbfb_plans[plan]->pub, __ATOMIC_ACQUIRE) == seq) {
+            bench_take_none(plan, &seq, &snap);
+            none++;
+        } else {
+            if (bench_take_new(plan, &seq, &snap) == 1)
+                fresh++;
+            if (fresh % 10 == 0 && h == 0) {
+                v[0] = (uint16_t)fresh;
+                h = mbfb_post_write(dev, 6, 100, 1, v, MBFB_WRITE_ONCE);
+                writes++;
+            }
+        }
+        if (h > 0 && mbfb_poll(h) >= MBFB_REQ_DONE) {
+            mbfb_take(h, NULL, 0);
+            h = 0;
+        }
+        t_sleep_ms(1); /* the next scan */
+    }
+    close_all();
+    printf("calls: bench_take_none %ld bench_take_new %ld mbfb_dev_diag_seq %ld "
+           "mbfb_post_write %ld\n", none, fresh, seqs, writes);
+}
+
+/* Every 10th request gets no reply. */
+static void drop_tenth(peer_t *p, int n, const uint8_t *f, int len, peer_reply_t *r)
+{
+    static int reads; /* the peer's thread only */
+    if (f[1] == 3 && len >= 6 && ((f[4] << 8) | f[5]) == 4 && ++reads % 10 == 0)
+        return;
+    peer_answer(p, n, f, len, r);
+}
+
+/* The cost of one fault in bus time and attempts (derived response timeout). */
+static void fault_cost(int n)
+{
+    char link[160];
+    mbfb_bus_config_t c;
+    mbfb_bus_diag_t bd;
+    mbfb_diag_t d;
+    int64_t t_clean = 0, t_fault = 0;
+    long clean = 0, fault = 0, dev;
+    uint16_t v[4];
+
+    snprintf(link, sizeof link, "%s/port", t_tmpdir());
+    if (peer_start(&P, link, PEER_RTU, drop_tenth, NULL) != 0)
+        exit(1);
+    c = t_cfg(P.link, 115200, MBFB_FRAMING_RTU, 0, 3);
+    dev = mbfb_dev_open(mbfb_bus_open(&c), 1);
+    for (int i = 0; i < n; i++) {
+        uint32_t before = (mbfb_dev_diag(dev, &d), d.timeouts);
+        int64_t t0 = t_now_us();
+        int rc = t_run(dev, 3, 0, 4, NULL, v, 4);
+        int64_t dt = t_now_us() - t0;
+        if (rc != 4) {
+            fprintf(stderr, "read %d failed: %d\n", i, rc);
+            exit(1);
+        }
+        mbfb_dev_diag(dev, &d);
+        if (d.timeouts != before)
+            t_fault += dt, fault++;
+        else
+            t_clean += dt, clean++;
+    }
+    mbfb_bus_diag(dev, &bd);
+    printf("115200 8N1, FC03 x 4 registers, derived timeout, every 10th unanswered:\n");
+    printf("  clean read   %6.2f ms (%ld)\n", clean ? t_clean / 1000.0 / clean : 0.0, clean);
+    printf("  faulted read %6.2f ms (%ld): timeout + settle + resync read + read again\n",
+           fault ? t_fault / 1000.0 / fault : 0.0, fault);
+    printf("  attempts %u for %ld reads; resync reads %u; timeouts %u\n", bd.transactions,
+           (long)n, d.resyncs, d.timeouts);
+    close_all();
+}
+
 /* Transactions completed back to back during `ms` milliseconds. */
 static long run_for(int dev, int ms)
 {
@@ -136,8 +255,12 @@ int main(int argc, char **argv)
         scan(atoi(argv[2]));
     else if (argc >= 3 && strcmp(argv[1], "fps") == 0)
         fps(atoi(argv[2]));
+    else if (argc >= 3 && strcmp(argv[1], "plan") == 0)
+        plan_scan(atoi(argv[2]));
+    else if (argc >= 3 && strcmp(argv[1], "fault") == 0)
+        fault_cost(atoi(argv[2]));
     else {
-        fprintf(stderr, "usage: mbfb_bench timing | scan N | fps SECONDS\n");
+        fprintf(stderr, "usage: mbfb_bench timing | scan N | fps SECONDS | plan N | fault N\n");
         return 2;
     }
     return 0;

@@ -149,10 +149,17 @@ int mbfb_plan_take(int plan, uint32_t *seq, mbfb_snap_t *out)
         out->result = LD(&b->result);
         out->gen = LD(&b->gen);
         out->read_mask = LD(&b->read_mask) & 0xFFFFu;
-        for (int i = 0; i < atoms && i < MBFB_SNAP_ATOMS; i++) {
+        if (atoms > MBFB_SNAP_ATOMS)
+            atoms = MBFB_SNAP_ATOMS; /* torn: retried below */
+        for (int i = 0; i < atoms - 1; i++) { /* whole atoms: an 8-byte move each */
             uint64_t a = LD(&b->atoms[i]);
-            int w = 4 * i, k = MBFB_PLAN_MAX_WORDS - w < 4 ? MBFB_PLAN_MAX_WORDS - w : 4;
-            memcpy(&out->words[w], &a, (size_t)k * sizeof out->words[0]);
+            memcpy(&out->words[4 * i], &a, sizeof a);
+        }
+        if (atoms > 0) { /* the last one: words[] ends at 125 */
+            uint64_t a = LD(&b->atoms[atoms - 1]);
+            int w = 4 * (atoms - 1);
+            memcpy(&out->words[w], &a,
+                   (size_t)(MBFB_PLAN_MAX_WORDS - w < 4 ? MBFB_PLAN_MAX_WORDS - w : 4) * 2);
         }
         if (LD(&b->seq) == s)
             break;
