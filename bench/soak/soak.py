@@ -252,6 +252,7 @@ class Soak:
         self.final_reads = 0         # reads of the final recovery check (on the wire too)
         self.events_busy = 0         # background control ops running (reopen_port)
         self.last_log = 0.0
+        self.trace = open(args.trace, "w", encoding="utf-8") if args.trace else None
         self.log_frames = 0
         self.line_bytes = self.line_frames = self.rx_frames = 0
 
@@ -274,6 +275,9 @@ class Soak:
     def fetch_log(self):
         frames = self.ctl(op="log", clear=True)["frames"]
         self.log_frames += len(frames)
+        if self.trace:
+            for f in frames:
+                self.trace.write(json.dumps({"ev": "frame", **f}) + "\n")
         if len(frames) >= 3990:
             self.stats["log_inconsistent"] += 1   # the log may have overflowed
         for i, f in enumerate(frames):
@@ -319,16 +323,22 @@ class Soak:
         self.events_busy += 1
         threading.Thread(target=run, daemon=True).start()
 
+    def tr(self, ev, **kw):
+        if self.trace:
+            self.trace.write(json.dumps({"ev": ev, "t": round(time.monotonic() - self.t0, 6),
+                                         **kw}) + "\n")
+
     # ---- faults ----
     def pick_fault(self):
         kinds = list(WEIGHTS)
         return self.rng.choices(kinds, weights=[WEIGHTS[k] for k in kinds])[0]
 
     def inject(self, dev, now):
+        if dev.backoff and not self.a.faults_in_backoff:
+            return   # not on the wire: the fault would wait for a reply that does not come
         kind = self.pick_fault()
+        self.tr("fault", dev=dev.addr, kind=kind)
         if kind in REPLY_FAULTS:
-            if dev.backoff:
-                return   # not on the wire: the fault would wait for a reply that does not come
             # at most one fault pending per device: one not applied yet (its reply never
             # came: device busy or offline) is dropped, so faults cannot pile up
             self.ctl(op="fault", addr=dev.addr, kind="clear")
@@ -392,6 +402,8 @@ class Soak:
             raise RuntimeError(f"mbfb_post failed: {h}")
         req["h"], req["t"] = h, now
         dev.out = req
+        self.tr("post", dev=dev.addr, fc=req["fc"], addr=req["addr"], count=req["count"],
+                values=req["write"]["values"] if req["write"] else None)
 
     def finish(self, dev, req, now):
         rc, words = self.shims.take(req["h"], req["count"])
@@ -399,6 +411,7 @@ class Soak:
         st = self.stats
         result = 0 if rc >= 0 else -rc
         st["results"][result] = st["results"].get(result, 0) + 1
+        self.tr("done", dev=dev.addr, result=result, words=words[:8])
         dev.backoff = result == E_OFFLINE
         if result in (E_OFFLINE, E_NOPORT):
             # not on the wire (back-off, or the port is not there): not a transaction; wait
@@ -445,6 +458,7 @@ class Soak:
         else:
             now_words = [dev.cur[r] for r in regs]
         rec["applied"] = now_words == rec["values"]
+        self.tr("truth", dev=dev.addr, words=now_words, applied=rec["applied"])
         self.writes.append(rec)
         if result == 0:
             st["writes_done"] += 1
@@ -690,6 +704,10 @@ def main(argv=None):
     ap.add_argument("--lib", default=os.environ.get("MBFB_SOAK_LIB"),
                     help="the shims as a shared library (build target mbfb_soak_lib)")
     ap.add_argument("--sim-dir", help="folder of simctl.py (default: tools/sim, else tests/sim)")
+    ap.add_argument("--faults-in-backoff", action="store_true",
+                    help="inject faults and events also while the shims hold the device in "
+                         "back-off (reply faults then wait for its next reply)")
+    ap.add_argument("--trace", help="write every request, result and frame to this file")
     ap.add_argument("--json", help="also write the figures to this file")
     ap.add_argument("--progress", type=float, default=0, help="progress line every N s")
     a = ap.parse_args(argv)
