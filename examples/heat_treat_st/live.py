@@ -132,8 +132,8 @@ def screen(hr, coils, sim, t0, title, where, trend, note):
          ("Zone 2  MV-D94  #2", hr[3], hr[4], hr[5], coils[3], coils[4], coils[5])]
     codes = set()
     out = ["\033[H\033[2J",
-           f"modbus-fb demo: heat-treat line in {title}   (up {time.monotonic() - t0:5.0f} s)",
-           f"{where}   Ctrl-C stops", "",
+           f"modbus-fb demo: the heat-treat line, live   (up {time.monotonic() - t0:.0f} s; Ctrl-C stops)",
+           f"PLC: {title}", where, "",
            f"{'device':20}{'PV °C':>9}{'SV °C':>9}  {'status':26}alarm"]
     for name, pv, sv, err, valid, band, quiet in z:
         status = ("ok" if valid else "no data") + (f", {code_name(err)}" if err else "")
