@@ -256,6 +256,7 @@ typedef struct mbfb_bus {
     mbfb_timing_t timing;
     int fd;                  /* the port's file descriptor, -1 when closed        */
     int64_t quiet_from_us;   /* the line is silent from this time on              */
+    int64_t reopen_us;       /* worker: plans try to open the port again from then */
     int timeout_us;          /* response timeout of the current attempt           */
     int settle_us;           /* silence owed before the next attempt: the response
                                 timeout of a failed attempt (its late reply may still

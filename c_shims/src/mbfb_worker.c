@@ -407,6 +407,8 @@ static int device_request(mbfb_bus_t *bus, op_t *op)
         return MBFB_E_OFFLINE;
     }
     if (bus->fd < 0 && bus->be->open(bus) < 0) {
+        /* plans try again only after a probe interval: no spinning on open() */
+        bus->reopen_us = mbfb_now_us() + (int64_t)MBFB_PROBE_FIRST_MS * 1000;
         set_error(dev, MBFB_E_NOPORT);
         return MBFB_E_NOPORT;
     }
@@ -469,20 +471,24 @@ static int run_posted(mbfb_bus_t *bus)
 
 /* ---- plans ------------------------------------------------------------------------- */
 
-/* When a plan is due (monotonic us); INT64_MAX if it is not running. A device in
- * back-off is due at its next probe only. */
-static int64_t plan_due(mbfb_plan_t *p)
+/* When a plan is due (monotonic us); INT64_MAX if it is not running. New settings:
+ * now. A device in back-off is due at its next probe only; a port that could not be
+ * opened, once the probe interval has passed. */
+static int64_t plan_due(mbfb_bus_t *bus, mbfb_plan_t *p)
 {
     mbfb_dev_t *dev = mbfb_devs[p->dev];
     int64_t due;
     if (!__atomic_load_n(&p->running, __ATOMIC_ACQUIRE))
         return INT64_MAX;
-    due = p->last_start_us == 0
-              ? 0
-              : p->last_start_us +
-                    (int64_t)__atomic_load_n(&p->period_ms, __ATOMIC_RELAXED) * 1000;
+    if (p->last_start_us == 0 || __atomic_load_n(&p->cfg_seq, __ATOMIC_ACQUIRE) != p->cfg_seen)
+        due = 0;
+    else
+        due = p->last_start_us +
+              (int64_t)__atomic_load_n(&p->period_ms, __ATOMIC_RELAXED) * 1000;
     if (dev->probe_ms > 0 && dev->next_probe_us > due)
         due = dev->next_probe_us;
+    if (bus->fd < 0 && bus->reopen_us > due)
+        due = bus->reopen_us;
     return due;
 }
 
@@ -565,7 +571,7 @@ static mbfb_plan_t *next_plan(mbfb_bus_t *bus, int64_t now, int64_t *wake_at)
         int i = (bus->rr + 1 + k) % n;
         mbfb_plan_t *p = __atomic_load_n(&bus->plans[i], __ATOMIC_ACQUIRE);
         int64_t due;
-        if (p == NULL || (due = plan_due(p)) == INT64_MAX)
+        if (p == NULL || (due = plan_due(bus, p)) == INT64_MAX)
             continue;
         if (best == NULL || due < best_due) {
             best = p;

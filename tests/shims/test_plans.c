@@ -9,6 +9,7 @@
  *              no bus time
  *   writes     a write posted while plans run goes before the next plan read
  *   diag       diag_seq changes with the diagnostics; bus diag counts plans
+ *   no port    a port that cannot be opened is tried again every probe interval only
  */
 #include <string.h>
 
@@ -245,8 +246,33 @@ static void writes_first(void)
     teardown();
 }
 
+/* A port that cannot be opened: each refresh ends NOPORT, and the worker tries to open
+ * it again only every probe interval (no spinning on open()). */
+static void no_port(void)
+{
+    mbfb_plan_item_t it[1] = {{3, 0, 1, MBFB_TIER_EVERY}};
+    mbfb_bus_config_t c = t_cfg("/nonexistent/ttyPLAN0", 9600, MBFB_FRAMING_RTU, 0, -1);
+    mbfb_snap_t s;
+    uint32_t seq = 0;
+    int dev, plan, n = 0;
+
+    t_scenario = "no port";
+    dev = mbfb_dev_open(mbfb_bus_open(&c), 1);
+    plan = mbfb_plan_open(dev);
+    CHECK_EQ(mbfb_plan_set(plan, it, 1, 0, 0), 0);
+    CHECK_EQ(wait_snap(plan, &seq, &s, NULL), 1);
+    CHECK_EQ(s.result, MBFB_E_NOPORT);
+    t_sleep_ms(1000);
+    CHECK_EQ(mbfb_plan_take(plan, &seq, &s), 1);
+    n = (int)s.seq;
+    CHECK(n >= 1 && n <= 4); /* 1 s at 0.5 s per try, not thousands */
+    CHECK_EQ(s.result, MBFB_E_NOPORT);
+    mbfb_shutdown();
+}
+
 int main(void)
 {
+    no_port();
     snapshot();
     tiers();
     stop();
