@@ -13,9 +13,11 @@
 #include <sys/socket.h>
 #include <unistd.h>
 
+#include <modbus.h>
+
 #include "fuzz_common.h"
 
-static mbfb_bus_t bus; /* only the fields a backend's recv reads */
+static mbfb_bus_t bus; /* only the fields a backend's recv reads: be, be_priv, fd, timing */
 static modbus_t *rtu_ctx, *tcp_ctx;
 
 static void setup(void)
@@ -64,11 +66,11 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
     bus.be = backends[sel];
     bus.fd = sv[0];
     mbfb_timing_init(&bus.timing, 115200, 'N', 8, 1);
-    if (sel == 0 || sel == 2) {
-        bus.ctx = rtu_ctx;
+    if (sel == 0 || sel == 2) { /* the lm backend's state: its libmodbus context */
+        bus.be_priv = rtu_ctx;
         modbus_set_socket(rtu_ctx, sv[0]);
     } else if (sel == 3) {
-        bus.ctx = tcp_ctx;
+        bus.be_priv = tcp_ctx;
         modbus_set_socket(tcp_ctx, sv[0]);
     }
     rc = bus.be->recv(&bus, req, frame, max, 2000);
@@ -82,8 +84,8 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
     /* the silence before a request reads and discards whatever is left */
     if (sel != 3)
         FZ_ASSERT(mbfb_serial_quiet(&bus, 1000, 5000) >= -MBFB_E_PORTLOST);
-    if (bus.ctx != NULL)
-        modbus_set_socket(bus.ctx, -1);
+    if (bus.be_priv != NULL)
+        modbus_set_socket((modbus_t *)bus.be_priv, -1);
     close(sv[0]);
     close(sv[1]);
     return 0;

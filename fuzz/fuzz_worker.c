@@ -95,6 +95,15 @@ static int encode(int framing, const uint8_t *fr, int len, uint8_t *out)
     return len + 2;
 }
 
+static int hexval(uint8_t c)
+{
+    if (c >= '0' && c <= '9')
+        return c - '0';
+    if (c >= 'A' && c <= 'F')
+        return c - 'A' + 10;
+    return 0;
+}
+
 /* Request frame (slave + PDU) from the bytes heard. */
 static int decode(int framing, const uint8_t *raw, int n, uint8_t *out)
 {
@@ -105,11 +114,8 @@ static int decode(int framing, const uint8_t *raw, int n, uint8_t *out)
         return n - 2;
     }
     int k = 0;
-    for (int i = 1; i + 1 < n && raw[i] != '\r'; i += 2) {
-        int hi = raw[i] <= '9' ? raw[i] - '0' : raw[i] - 'A' + 10;
-        int lo = raw[i + 1] <= '9' ? raw[i + 1] - '0' : raw[i + 1] - 'A' + 10;
-        out[k++] = (uint8_t)(hi << 4 | lo);
-    }
+    for (int i = 1; i + 1 < n && raw[i] != '\r'; i += 2) /* heard bytes may be anything */
+        out[k++] = (uint8_t)(hexval(raw[i]) << 4 | hexval(raw[i + 1]));
     return k > 0 ? k - 1 : 0; /* without the LRC */
 }
 
