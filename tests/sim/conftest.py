@@ -40,6 +40,9 @@ def instrument(port, addr, mode="rtu", baud=9600, parity="N", stop=2, timeout=0.
     """A minimalmodbus Instrument on the pty (closes the port after each call)."""
     import minimalmodbus
     import serial
+    # minimalmodbus reuses one Serial object per port name, opened with the previous settings:
+    # on a pty an open whose only change is parity fails (EINVAL), so start from a fresh one.
+    getattr(minimalmodbus, "_serialports", {}).pop(port, None)
     inst = minimalmodbus.Instrument(port, addr, mode=mode, close_port_after_each_call=True)
     inst.serial.baudrate = baud
     inst.serial.parity = {"N": serial.PARITY_NONE, "E": serial.PARITY_EVEN,

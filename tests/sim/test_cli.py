@@ -6,6 +6,7 @@ import signal
 import socket
 import subprocess
 import sys
+import tempfile
 import time
 
 import pytest
@@ -40,10 +41,97 @@ def run_bad(*args):
     (["--tcp", "0.0.0.0:0", "--device", "mvd94:1"], "127.0.0.1"),
     (["--pty"], "--device"),
     (["--device", "mvd94:1"], "required"),
+    (["--tcp", "127.0.0.1:99999", "--device", "mvd94:1"], "PORT 0..65535"),
+    (["--tcp", "127.0.0.1:http", "--device", "mvd94:1"], "PORT 0..65535"),
+    (["--tcp", "127.0.0.1", "--device", "mvd94:1"], "PORT 0..65535"),
+    (["--pty", "--baud", "0", "--device", "mvd94:1"], "--baud"),
+    (["--pty", "--baud", "fast", "--device", "mvd94:1"], "--baud"),
+    (["--pty", "--time-scale", "nan", "--device", "mvd94:1"], "--time-scale"),
+    (["--pty", "--time-scale", "-5", "--device", "mvd94:1"], "--time-scale"),
+    (["--pty", "--format", "8N1", "--device", "mvd94:1"], "speaks 8N2"),
+    (["--pty", "--baud", "115200", "--device", "fdc100:1"], "cannot run at 115200"),
+    (["--pty", "--device", "mvd94:x"], "mvd94:x"),
+    (["--pty", "--device", "mvd94:1", "--faults", "/nonexistent/faults.json"], "faults.json"),
+    (["--pty", "--device", "mvd94:1", "--control", "/nonexistent/dir/c.sock"], "c.sock"),
+    (["--pty", "--device", "mvd94:1", "--no-such-option"], "unrecognized"),
 ])
 def test_bad_command_lines(args, message):
+    """One line on stderr, nothing on stdout, exit 2, no traceback."""
     code, out, err = run_bad(*args)
-    assert code == 2 and out == "" and message in err
+    assert code == 2 and out == "" and message in err, err
+    assert err.count("\n") == 1 and "Traceback" not in err, err
+
+
+@pytest.mark.parametrize("entries,message", [
+    ([{"op": "set", "addr": 1, "reg": "SV"}], "'raw' or 'eng'"),
+    ([{"op": "set", "addr": 1}], "'reg' is required"),
+    ([{"op": "fault", "addr": 9, "kind": "drop"}], "no device"),
+    ([7], "not a JSON object"),
+    ({"op": "ping"}, "JSON list"),
+])
+def test_bad_faults_files(entries, message):
+    with tempfile.TemporaryDirectory(prefix="mbsim-test-") as tmp:
+        path = os.path.join(tmp, "faults.json")
+        with open(path, "w", encoding="utf-8") as fh:
+            json.dump(entries, fh)
+        code, out, err = run_bad("--pty", "--device", "mvd94:1", "--faults", path)
+    assert code == 2 and out == "" and message in err, err
+    assert err.count("\n") == 1 and "Traceback" not in err, err
+
+
+def test_a_control_socket_another_simulator_serves_is_not_taken():
+    with simctl.Simulator(["mvd94:1:SV=1000"]) as sim:
+        code, out, err = run_bad("--pty", "--device", "mvd94:1", "--control", sim.control_path)
+        assert code == 2 and out == "" and "another simulator is serving" in err, err
+        assert err.count("\n") == 1
+        assert sim.ctl("get", addr=1, reg="SV")["raw"] == 1000      # the first one still has it
+
+
+def test_a_stale_control_socket_is_replaced_and_a_file_is_not():
+    with tempfile.TemporaryDirectory(prefix="mbsim-test-") as tmp:
+        stale = os.path.join(tmp, "stale.sock")
+        s = socket.socket(socket.AF_UNIX)
+        s.bind(stale)
+        s.close()                               # a socket nobody serves (a killed simulator)
+        proc = subprocess.Popen([PY, MBSIM, "--pty", "--device", "mvd94:1", "--control", stale],
+                                stdout=subprocess.PIPE, text=True)
+        try:
+            assert proc.stdout.readline().startswith("PTY ")
+            c = socket.socket(socket.AF_UNIX)
+            c.connect(stale)
+            c.sendall(b'{"op":"ping"}\n')
+            assert json.loads(c.makefile().readline())["pid"] == proc.pid
+            c.close()
+        finally:
+            proc.terminate()
+            assert proc.wait(10) == 0
+            proc.stdout.close()
+        assert not os.path.exists(stale)        # removed at exit
+        plain = os.path.join(tmp, "plain.sock")
+        with open(plain, "w", encoding="utf-8") as fh:
+            fh.write("keep me")
+        code, out, err = run_bad("--pty", "--device", "mvd94:1", "--control", plain)
+        assert code == 2 and "not a socket" in err
+        with open(plain, encoding="utf-8") as fh:
+            assert fh.read() == "keep me"
+
+
+@pytest.mark.parametrize("req,why", [
+    ({"op": "set", "addr": 1, "reg": "SV", "eng": 99999}, "does not fit"),
+    ({"op": "set", "addr": 1, "reg": "SV", "raw": 40000}, "does not fit"),
+    ({"op": "set", "addr": 1, "reg": "SV", "raw": -32769}, "does not fit"),
+    ({"op": "set", "addr": 1, "reg": "PB", "raw": -1}, "does not fit"),
+    ({"op": "set", "addr": 1, "reg": "PB", "raw": 65536}, "does not fit"),
+    ({"op": "set", "addr": 1, "reg": "SV", "raw": 1.5}, "integer"),
+    ({"op": "set", "addr": 1, "reg": "SV", "eng": float("inf")}, "finite"),
+])
+def test_control_values_that_would_wrap_are_refused(req, why):
+    with simctl.Simulator(["mvd94:1:SV=100.0,DP=1"]) as sim:
+        reply = sim.control(req)
+        assert reply["ok"] is False and why in reply["error"], reply
+        assert sim.ctl("get", addr=1, reg="SV")["raw"] == 1000             # unchanged
+        assert sim.ctl("set", addr=1, reg="SV", raw=-32768)["raw"] == -32768   # the edges fit
+        assert sim.ctl("set", addr=1, reg="PB", raw=65535)["raw"] == 65535
 
 
 def test_ready_line_sigterm_sigint_and_cleanup(tmp_path):

@@ -217,3 +217,50 @@ def test_bad_fault_requests_are_refused(sim):
     assert not sim.control({"op": "fault", "addr": 1, "kind": "drop", "prob": 2})["ok"]
     assert sim.ctl("stats")["devices"]["1"]["faults_pending"] == 0
     assert json.dumps(sim.ctl("stats"))
+
+
+def test_several_probabilistic_faults_on_one_device_all_fire():
+    """Each pending fault draws its own probability: not only the first ever fires."""
+    with simctl.Simulator(["mvd94:1:SV=1000"], seed=3) as s:
+        raw = simctl_raw(s.port)
+        try:
+            s.ctl("fault", addr=1, kind="drop", prob=0.3, count=-1)
+            s.ctl("fault", addr=1, kind="bad_crc", prob=0.5, count=-1)
+            s.ctl("fault", addr=1, kind="wrong_slave", prob=0.5, count=-1)
+            replies = [hexu(raw.xfer(READ, wait=0.08)) for _ in range(40)]
+            applied = s.ctl("stats")["devices"]["1"]["faults"]
+        finally:
+            raw.close()
+    assert applied["drop"] > 0 and applied["bad_crc"] > 0 and applied["wrong_slave"] > 0
+    assert sum(applied.values()) == sum(r != GOOD for r in replies)     # one fault per reply
+    assert replies.count(GOOD) > 0
+
+
+def test_several_faults_count_their_own_skips(sim, raw_factory):
+    raw = raw_factory(sim.port)
+    sim.ctl("fault", addr=1, kind="drop", count=1, skip=1)
+    sim.ctl("fault", addr=1, kind="exception", code=4, count=1, skip=1)
+    results = [hexu(raw.xfer(READ, wait=0.15)) for _ in range(4)]
+    assert results == [GOOD, "", crc("01 83 04"), GOOD]
+
+
+@pytest.mark.parametrize("req", [
+    {"kind": "late", "delay_ms": -5}, {"kind": "late", "delay_ms": "soon"},
+    {"kind": "drop", "count": -2}, {"kind": "drop", "skip": -1}, {"kind": "noise", "bytes": -1},
+    {"kind": "drop", "prob": float("nan")}, {"kind": "wrong_slave", "slave": 300},
+    {"kind": "truncate", "keep": -1}, {"kind": "exception", "code": 0},
+])
+def test_fault_values_it_cannot_honour_are_refused(sim, req):
+    reply = sim.control({"op": "fault", "addr": 1, **req})
+    assert reply["ok"] is False and reply["error"]
+    assert sim.ctl("stats")["devices"]["1"]["faults_pending"] == 0
+
+
+@pytest.mark.parametrize("req", [
+    {"op": "power_cycle", "addr": 1, "down_ms": -1},
+    {"op": "reopen_port", "down_ms": -5},
+    {"op": "reopen_port", "down_ms": float("inf")},
+])
+def test_negative_or_endless_durations_are_refused(sim, req):
+    reply = sim.control(req)
+    assert reply["ok"] is False and "down_ms" in reply["error"]

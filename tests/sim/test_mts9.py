@@ -10,6 +10,12 @@ rtu = simctl.fixture(["mts9:1:framing=rtu,digits=6", "mts9:2:rate=5000,digits=4"
                      fmt="8N1", scope="module")
 
 
+@pytest.fixture
+def raw_factory(raw_factory):
+    """Raw masters at these lines' 8N1 (the simulator hears only a master on the line)."""
+    return lambda port, baud=9600, stop=1: raw_factory(port, baud, stop)
+
+
 def hexu(data):
     return data.hex(" ").upper()
 

@@ -24,8 +24,26 @@ TICK_S = 0.05       # real seconds between steps of the dynamics
 INIT_FIRST = ("DP", "INPT", "LOLT", "HILT", "SP1L", "SP1H")   # others' scaling/range use these
 
 
+class Parser(argparse.ArgumentParser):
+    """Command-line errors are one line on stderr and exit 2 (no usage dump, no traceback)."""
+
+    def error(self, message):
+        self.exit(2, f"mbsim: error: {message} (see --help)\n")
+
+
+def parse_tcp(text: str) -> tuple[str, int]:
+    """'127.0.0.1:PORT' -> (host, port); ValueError for anything else."""
+    host, sep, port = text.rpartition(":")
+    if not sep or not port.isdigit() or not 0 <= int(port) <= 65535:
+        raise ValueError(f"--tcp {text!r}: expected 127.0.0.1:PORT with PORT 0..65535")
+    host = host.strip("[]") or "127.0.0.1"
+    if host not in ("127.0.0.1", "localhost", "::1"):
+        raise ValueError(f"--tcp {text!r}: the simulator listens on 127.0.0.1 only")
+    return host, int(port)
+
+
 def parse_args(argv):
-    p = argparse.ArgumentParser(prog="mbsim.py", description=__doc__ + " See tools/sim/README.md.")
+    p = Parser(prog="mbsim.py", description=__doc__ + " See tools/sim/README.md.")
     where = p.add_mutually_exclusive_group(required=True)
     where.add_argument("--pty", action="store_true", help="serve on a new pty")
     where.add_argument("--serial", metavar="DEVICE", help="serve on a serial device")
@@ -48,8 +66,15 @@ def parse_args(argv):
         p.error("at least one --device is required")
     if args.link and not args.pty:
         p.error("--link needs --pty")
-    if args.time_scale <= 0:
-        p.error("--time-scale must be > 0")
+    if not args.time_scale > 0 or args.time_scale == float("inf"):
+        p.error("--time-scale must be a number > 0")
+    if not 50 <= args.baud <= 4000000:
+        p.error(f"--baud {args.baud}: must be 50..4000000")
+    if args.tcp:
+        try:
+            parse_tcp(args.tcp)
+        except ValueError as err:
+            p.error(str(err))
     return args
 
 
@@ -59,7 +84,10 @@ def parse_device(text: str):
     if len(parts) < 2 or parts[0] not in KINDS:
         raise ValueError(f"--device {text!r}: expected KIND:ADDR[:NAME=VALUE,...], "
                          f"KIND one of {', '.join(KINDS)}")
-    addr = int(parts[1], 0)
+    try:
+        addr = int(parts[1], 0)
+    except ValueError:
+        raise ValueError(f"--device {text!r}: address {parts[1]!r} is not a number") from None
     if not 1 <= addr <= 255:
         raise ValueError(f"--device {text!r}: address must be 1..255 (0 is broadcast)")
     items = []
@@ -144,8 +172,8 @@ class App:
         self.args = args
         self.bus = Bus(line, devices, args.seed)
         if args.tcp:
-            host, _, port = args.tcp.rpartition(":")
-            self.transport = TcpLine(self.bus, host or "127.0.0.1", int(port))
+            host, port = parse_tcp(args.tcp)
+            self.transport = TcpLine(self.bus, host, port)
             self.transport_kind = "tcp"
         else:
             ptyline = find_ptyline(args.ptyline) if args.pace and args.pty else None
@@ -178,6 +206,13 @@ class App:
             print(f"mbsim: --faults entry {req}: {err}", file=sys.stderr)
 
     async def run(self) -> int:
+        try:
+            return await self._run()
+        finally:                    # also after an error at start: nothing left behind
+            self.transport.close()
+            self.control.close()
+
+    async def _run(self) -> int:
         loop = asyncio.get_running_loop()
         for sig in (signal.SIGTERM, signal.SIGINT):
             loop.add_signal_handler(sig, self.stopping.set)
@@ -192,18 +227,21 @@ class App:
         self.ready_line = await self.transport.start()
         tasks = [asyncio.ensure_future(self.ticker())]
         for req in script:          # immediate entries are applied before the ready line
+            if not isinstance(req, dict):
+                raise ValueError(f"--faults entry {json.dumps(req)}: not a JSON object")
             req = dict(req)
             req.setdefault("op", "fault")
             if float(req.get("at_ms", 0)) <= 0:
-                await self.control.execute(req)
+                try:
+                    await self.control.execute(req)
+                except Exception as err:  # pylint: disable=broad-except  (one line, exit 2)
+                    raise ValueError(f"--faults entry {json.dumps(req)}: {err}") from None
             else:
                 tasks.append(asyncio.ensure_future(self.scripted(req)))
         print(self.ready_line, flush=True)
         await self.stopping.wait()
         for task in tasks:
             task.cancel()
-        self.transport.close()
-        self.control.close()
         return 0
 
 
@@ -211,7 +249,11 @@ def main(argv=None) -> int:
     args = parse_args(sys.argv[1:] if argv is None else argv)
     try:
         line, devices = build(args)
-        return asyncio.run(App(args, line, devices).run())
-    except (ValueError, OSError) as err:
-        print(f"mbsim: error: {err}", file=sys.stderr)
+        app = App(args, line, devices)
+        return asyncio.run(app.run())
+    except KeyboardInterrupt:       # Ctrl-C before the handlers were installed
+        return 130
+    except (ValueError, OSError, KeyError, TypeError, OverflowError) as err:
+        print(f"mbsim: error: {str(err).strip(chr(34))}", file=sys.stderr)
         return 2
+

@@ -5,6 +5,9 @@ A fault spec (control 'fault' op, or an entry of --faults FILE):
 applies to the device's next N replies (count -1 = until cleared) after letting S replies pass;
 with prob < 1 each reply is hit with that probability (from the device's seeded generator);
 with "fc": F only replies to function code F count (the others pass untouched).
+Several faults may be pending on one device: each counts its own skips, each draws its own
+probability, and the first (in the order they were added) that is due and drawn applies; at
+most one fault per reply.
 A device with a late reply pending is busy: it ignores requests until the reply is out (bus.py).
 Kinds and parameters:
   drop                         no reply (the request is still applied)
@@ -21,6 +24,23 @@ from __future__ import annotations
 KINDS = ("drop", "bad_crc", "late", "wrong_slave", "truncate", "noise", "exception")
 
 
+def _num(spec: dict, key: str, default, lo, hi=None) -> float:
+    """A numeric fault parameter within lo..hi; ValueError (one line) otherwise."""
+    value = spec.get(key, default)
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or value != value:
+        raise ValueError(f"{key} must be a number, not {value!r}")
+    if value < lo or (hi is not None and value > hi):
+        raise ValueError(f"{key} must be {lo}..{hi if hi is not None else ''}, not {value}")
+    return float(value)
+
+
+def _int(spec: dict, key: str, default, lo, hi=None) -> int:
+    value = _num(spec, key, default, lo, hi)
+    if value != int(value):
+        raise ValueError(f"{key} must be an integer, not {value}")
+    return int(value)
+
+
 class Fault:
     """One pending fault of a device."""
 
@@ -28,22 +48,20 @@ class Fault:
         self.kind = spec["kind"]
         if self.kind not in KINDS:
             raise ValueError(f"unknown fault kind {self.kind!r} (one of {', '.join(KINDS)})")
-        self.count = int(spec.get("count", 1))
-        self.skip = int(spec.get("skip", 0))
-        self.prob = float(spec.get("prob", 1.0))
-        self.delay_ms = float(spec.get("delay_ms", 1000))
-        self.slave = int(spec.get("slave", addr % 247 + 1)) & 0xFF
-        self.keep = spec.get("keep")
-        self.nbytes = int(spec.get("bytes", 3))
+        self.count = _int(spec, "count", 1, -1)
+        self.skip = _int(spec, "skip", 0, 0)
+        self.prob = _num(spec, "prob", 1.0, 0.0, 1.0)
+        self.delay_ms = _num(spec, "delay_ms", 1000.0, 0.0, 3600e3)
+        self.slave = _int(spec, "slave", addr % 247 + 1, 0, 255)
+        self.keep = None if spec.get("keep") is None else _int(spec, "keep", 0, 0)
+        self.nbytes = _int(spec, "bytes", 3, 0, 4096)
         self.where = spec.get("where", "before")
-        self.code = int(spec.get("code", 4))
-        self.fc = None if spec.get("fc") is None else int(spec["fc"])
-        if not 0 <= self.prob <= 1 or self.count == 0 or self.where not in ("before", "after", "both"):
-            raise ValueError("bad fault parameters (prob 0..1, count != 0, where before/after/both)")
-        if self.fc is not None and not 1 <= self.fc <= 127:
-            raise ValueError("fc must be a function code 1..127")
-        if self.kind == "exception" and not 1 <= self.code <= 255:
-            raise ValueError("exception code must be 1..255")
+        self.code = _int(spec, "code", 4, 1, 255)
+        self.fc = None if spec.get("fc") is None else _int(spec, "fc", 0, 1, 127)
+        if self.count == 0:
+            raise ValueError("count must be > 0, or -1 (until cleared)")
+        if self.where not in ("before", "after", "both"):
+            raise ValueError("where must be before, after or both")
 
 
 class FaultQueue:
@@ -64,22 +82,29 @@ class FaultQueue:
         return fault
 
     def next(self, fc: int | None = None) -> Fault | None:
-        """Fault for the reply about to be made to function fc (None: answer normally)."""
-        for fault in self.pending:
+        """Fault for the reply about to be made to function fc (None: answer normally).
+        Every pending fault for this function counts the reply against its own skip; of those
+        due, each draws its own probability in order, and the first drawn applies."""
+        chosen = None
+        for fault in list(self.pending):
             if fault.fc is not None and fault.fc != fc:
                 continue
             if fault.skip > 0:
                 fault.skip -= 1
-                return None
+                continue
+            if chosen is not None:
+                continue
             if fault.prob < 1.0 and self.rng.random() >= fault.prob:
-                return None
-            if fault.count > 0:
-                fault.count -= 1
-                if fault.count == 0:
-                    self.pending.remove(fault)
-            self.applied[fault.kind] += 1
-            return fault
-        return None
+                continue
+            chosen = fault
+        if chosen is None:
+            return None
+        if chosen.count > 0:
+            chosen.count -= 1
+            if chosen.count == 0:
+                self.pending.remove(chosen)
+        self.applied[chosen.kind] += 1
+        return chosen
 
     def shape(self, fault: Fault, frame: bytes, framing: str, reencode, corrupt) -> tuple:
         """(bytes to send or None, extra delay s) of a reply frame under a fault."""

@@ -96,9 +96,11 @@ class MtS9(Device):
             self.frac = 0.0
 
     def char_format(self):
-        """Its Baud Rate Set; the character format is not in the manual: the line's."""
+        """Its Baud Rate Set; the character format is not in the manual: the unit is taken to
+        be set to the line's (--format), and a master must match it like any other."""
         code = self.words[A_BAUD]
-        return (BAUDS[code] if code < len(BAUDS) else None), None, None, None
+        return ((BAUDS[code] if code < len(BAUDS) else -1), self.line.data_bits,
+                self.line.parity, self.line.stop_bits)
 
     def hears(self, master=None):
         if master == ANY_LINE:

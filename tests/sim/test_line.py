@@ -1,0 +1,108 @@
+"""The simulator enforces the line: a master whose port settings differ from the device's gets
+what a UART would give (nothing valid), on the simulator's own pty and through ptyline. Masters
+we did not write: minimalmodbus (pyserial) and pymodbus.
+
+On a Linux pty a master's parity and data bits are invisible (the kernel drops PARENB and CS7),
+so 8E1 shows as 8N1: against an 8N2 device it fails on the stop bits, which the pty does show.
+A pty also refuses (EINVAL) a tcsetattr whose only change is PARENB, so pyserial cannot open it
+at 8E1 right after a master at 8N1 on the same pty (and pymodbus, which sets the port twice, never
+can): the 8E1 master here is minimalmodbus, opened when the pty is at 8N2.
+"""
+import minimalmodbus
+import pytest
+
+from conftest import instrument
+from test_cli import os_ptyline
+import simctl
+
+NO_REPLY = (minimalmodbus.NoResponseError, minimalmodbus.InvalidResponseError)
+
+
+def read_sv(port, **line):
+    return instrument(port, 1, timeout=0.3, **line).read_register(0)
+
+
+def pymodbus_read(port, parity, stopbits, baud=9600):
+    """One FC03 read of register 0 at slave 1 with pymodbus; the value, or None if no valid reply."""
+    from pymodbus.client import ModbusSerialClient
+    client = ModbusSerialClient(port=port, baudrate=baud, parity=parity, stopbits=stopbits,
+                                bytesize=8, timeout=0.3, retries=0)
+    try:
+        assert client.connect()
+        try:
+            rr = client.read_holding_registers(0, count=1, slave=1)
+        except Exception:  # pylint: disable=broad-except  (pymodbus raises on no reply)
+            return None
+        return None if rr.isError() else rr.registers[0]
+    finally:
+        client.close()
+
+
+def test_8e1_master_gets_no_reply_from_an_8n2_device_and_8n2_does():
+    with simctl.Simulator(["mvd94:1:SV=1000"]) as sim:        # the MV-D94: 9600 8N2 only
+        with pytest.raises(NO_REPLY):
+            read_sv(sim.port, parity="E", stop=1)
+        assert read_sv(sim.port, parity="N", stop=2) == 1000
+        with pytest.raises(NO_REPLY):
+            read_sv(sim.port, parity="E", stop=1)
+        assert pymodbus_read(sim.port, "N", 2) == 1000
+        dev = sim.ctl("stats")["devices"]["1"]
+        assert dev["line_mismatch"] == 2 and dev["replies"] == 2
+        log = sim.log()
+        infos = [f.get("info") for f in log if f["dir"] == "rx"]
+        assert infos.count("line settings differ: heard as garbage") == 2
+        assert [f["hex"] for f in log if f["dir"] == "tx"] == ["01 03 02 03 E8 B8 FA"] * 2
+
+
+def test_a_master_at_another_baud_gets_nothing():
+    with simctl.Simulator(["mvd94:1:SV=1000"]) as sim:
+        with pytest.raises(NO_REPLY):
+            read_sv(sim.port, baud=19200)
+        assert read_sv(sim.port) == 1000
+
+
+def test_a_device_moved_to_another_baud_answers_there_only():
+    """A master writes the MV-D94's BAUD (19.2K, code 0x1F): the unit answers at 19200 only."""
+    with simctl.Simulator(["mvd94:1:SV=1000"]) as sim:
+        instrument(sim.port, 1).write_register(0x1C, 0x1F, functioncode=6)
+        with pytest.raises(NO_REPLY):
+            read_sv(sim.port)
+        assert read_sv(sim.port, baud=19200) == 1000
+
+
+def test_fdc_at_its_factory_8e1():
+    """An FDC at 9600 8E1: a master at 8E1 is heard (parity invisible on a pty, 1 stop bit
+    matches); a master at 8N2 is not."""
+    with simctl.Simulator(["fdc100:1"], fmt="8E1") as sim:
+        with pytest.raises(NO_REPLY):
+            instrument(sim.port, 1, parity="N", stop=2, timeout=0.3).read_register(39)
+        assert instrument(sim.port, 1, parity="E", stop=1, timeout=0.3).read_register(39) == 1
+        assert sim.ctl("stats")["devices"]["1"]["line_mismatch"] == 1
+
+
+def test_through_ptyline_a_wrong_line_is_garbled():
+    binary = os_ptyline()
+    with simctl.Simulator(["mvd94:1:SV=1000"], pace=True, extra=["--ptyline", binary]) as sim:
+        with pytest.raises(NO_REPLY):
+            read_sv(sim.port, parity="E", stop=1)
+        stats = sim.ctl("line_stats")["stats"]
+        assert stats["m2s"]["format_errors"] == 8          # the whole request, as NUL bytes
+        assert stats["s2m"]["bytes"] == 0
+        assert read_sv(sim.port, parity="N", stop=2) == 1000
+        assert pymodbus_read(sim.port, "N", 2) == 1000
+        line = sim.ctl("stats")["line"]
+        assert line["rx_frames"] == 2 and line["bad_frames"] == 1     # the garbled one: NULs
+        stats = sim.ctl("line_stats")["stats"]
+        assert stats["m2s"]["format_errors"] == 8 and stats["s2m"]["frames"] == 2
+
+
+@pytest.mark.parametrize("devices,fmt,baud,why", [
+    (["mvd94:1"], "8N1", 9600, "speaks 8N2"),
+    (["vd:1"], "8E1", 9600, "speaks 8N2"),
+    (["mvd94:1"], "8N2", 38400, "cannot run at 38400"),
+    (["fdc100:1"], "8N2", 57600, "cannot run at 57600"),
+])
+def test_a_device_on_a_line_it_cannot_speak_is_refused(devices, fmt, baud, why):
+    with pytest.raises(simctl.SimulatorError) as err:
+        simctl.Simulator(devices, fmt=fmt, baud=baud).start()
+    assert why in str(err.value)
