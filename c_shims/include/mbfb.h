@@ -10,8 +10,11 @@
  *   device  (bus, slave id): owns diagnostics and the offline back-off state.
  *   request one Modbus transaction posted by a block; lives in a preallocated slot.
  *
- * Scan-side calls (mbfb_post, mbfb_poll, mbfb_take, mbfb_cancel, mbfb_dev_diag,
- * mbfb_strerror) never block, never touch a file descriptor and never allocate.
+ * Scan-side calls (mbfb_post, mbfb_post_write, mbfb_poll, mbfb_take, mbfb_cancel,
+ * mbfb_plan_set/_stop/_invalidate/_take, mbfb_dev_diag, mbfb_dev_diag_seq,
+ * mbfb_bus_diag, mbfb_strerror) never block, never touch a file descriptor and never
+ * allocate; the only system call they make is sem_post in mbfb_post, mbfb_post_write
+ * and mbfb_plan_set (to wake the worker).
  * Setup calls (mbfb_bus_open, mbfb_dev_open) may allocate and start the worker;
  * they do not wait for the port: opening happens on the worker, and a port that
  * cannot be opened makes that bus's requests end with MBFB_E_NOPORT.
@@ -51,7 +54,8 @@ extern "C" {
 #define MBFB_E_TIMEOUT       1  /* no reply after all retries                         */
 #define MBFB_E_CRC           2  /* reply failed its CRC / LRC check (after retries)   */
 #define MBFB_E_BADREPLY      3  /* wrong slave, function, byte count, echo, truncated */
-#define MBFB_E_OFFLINE       4  /* device in back-off after repeated failures: not sent */
+#define MBFB_E_OFFLINE       4  /* device in back-off after repeated failures, or no
+                                   resync read possible yet (README): not sent         */
 #define MBFB_E_NOPORT        5  /* port does not exist / cannot be opened             */
 #define MBFB_E_PORTLOST      6  /* port failed during I/O (EIO, adapter pulled)       */
 #define MBFB_E_CANCELLED     7  /* cancelled by the block before completion           */

@@ -26,6 +26,7 @@ static modbus_t *ctx_of(mbfb_bus_t *bus)
     return (modbus_t *)bus->be_priv;
 }
 
+/* errno of libmodbus / read / write -> -MBFB_E_*. */
 int mbfb_errno_to_err(int err)
 {
     switch (err) {
@@ -80,6 +81,7 @@ static int lm_connect(mbfb_bus_t *bus, modbus_t *ctx)
     return 0;
 }
 
+/* Open and configure the serial port with libmodbus (every serial framing). */
 int mbfb_lm_serial_open(mbfb_bus_t *bus)
 {
     const mbfb_bus_config_t *c = &bus->cfg;
@@ -106,6 +108,7 @@ static int tcp_open(mbfb_bus_t *bus)
     return lm_connect(bus, modbus_new_tcp_pi(host, colon + 1));
 }
 
+/* Close the port and free the libmodbus context. */
 void mbfb_lm_close(mbfb_bus_t *bus)
 {
     if (bus->be_priv) {

@@ -180,6 +180,7 @@ static int bus_create(int index, const mbfb_bus_config_t *c, const char *key)
     return index;
 }
 
+/* Open or join the bus of cfg->port (by identity); see mbfb.h. */
 int mbfb_bus_open(const mbfb_bus_config_t *cfg)
 {
     mbfb_bus_config_t c;
@@ -239,12 +240,12 @@ int mbfb_bus_open_args(const char *port, int port_len, int baud, int parity, int
     return mbfb_bus_open(&c);
 }
 
+/* Device handle for (bus, slave): found or allocated under the registry lock. */
 int mbfb_dev_open(int bus, int slave)
 {
     mbfb_bus_t *b;
     int rc = -MBFB_E_NOMEM;
 
-    /* Device handle for (bus, slave): found or allocated under the registry lock. */
     if (bus < 0 || bus >= MBFB_MAX_BUSES ||
         (b = __atomic_load_n(&mbfb_buses[bus], __ATOMIC_ACQUIRE)) == NULL)
         return -MBFB_E_BADHANDLE;

@@ -23,6 +23,7 @@ uint16_t mbfb_crc16(const uint8_t *buf, int len)
     return crc;
 }
 
+/* Modbus ASCII LRC: two's complement of the byte sum. */
 uint8_t mbfb_lrc(const uint8_t *buf, int len)
 {
     uint8_t sum = 0;
@@ -31,6 +32,7 @@ uint8_t mbfb_lrc(const uint8_t *buf, int len)
     return (uint8_t)(-sum);
 }
 
+/* Big-endian 16-bit value. */
 static void put16(uint8_t *p, int v)
 {
     p[0] = (uint8_t)((v >> 8) & 0xFF);
@@ -56,6 +58,7 @@ int mbfb_build_request(uint8_t *out, int slave, int fc, int addr, int count,
     return 7 + 2 * count;
 }
 
+/* Length of the good reply frame to a request frame. */
 int mbfb_reply_len(const uint8_t *req)
 {
     if (req[1] == 3 || req[1] == 4)
@@ -63,6 +66,7 @@ int mbfb_reply_len(const uint8_t *req)
     return 6; /* FC06 echo, FC16 address + count */
 }
 
+/* Validate a reply frame against its request (see mbfb_internal.h). */
 int mbfb_check_reply(const uint8_t *req, const uint8_t *rsp, int len)
 {
     int fc = req[1];
@@ -85,9 +89,10 @@ int mbfb_check_reply(const uint8_t *req, const uint8_t *rsp, int len)
     }
 }
 
+/* Check a request's arguments against the protocol limits. */
 int mbfb_check_args(int slave, int fc, int addr, int count, const uint16_t *values)
 {
-    if (addr < 0 || addr > 0xFFFF)
+    if (addr < 0 || addr >= MBFB_ADDR_SPACE)
         return MBFB_E_INVAL;
     switch (fc) {
     case 3:
@@ -106,5 +111,5 @@ int mbfb_check_args(int slave, int fc, int addr, int count, const uint16_t *valu
     default:
         return MBFB_E_INVAL;
     }
-    return addr + count > 0x10000 ? MBFB_E_INVAL : MBFB_OK;
+    return addr + count > MBFB_ADDR_SPACE ? MBFB_E_INVAL : MBFB_OK;
 }

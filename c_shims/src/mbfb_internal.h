@@ -25,6 +25,7 @@ extern "C" {
 #define MBFB_FRAME_MAX     256  /* slave + PDU (253) + 2 check bytes              */
 #define MBFB_MAX_SLAVE     247  /* serial addresses 1..247, 0 = broadcast         */
 #define MBFB_MAX_UNIT      255  /* Modbus TCP unit identifiers                    */
+#define MBFB_ADDR_SPACE    0x10000 /* register addresses 0..0xFFFF                 */
 
 /* ---- sizes of this library -------------------------------------------------- */
 #define MBFB_MAX_BUSES     16   /* 4 bits of a request handle                     */

@@ -70,8 +70,8 @@ static int check_items(const mbfb_plan_item_t *items, int n)
     for (int i = 0; i < n; i++) {
         const mbfb_plan_item_t *it = &items[i];
         if ((it->fc != 3 && it->fc != 4) || it->count < 1 || it->count > MBFB_MAX_READ ||
-            it->addr < 0 || it->addr + it->count > 0x10000 || it->tier < MBFB_TIER_EVERY ||
-            it->tier > MBFB_TIER_FAST)
+            it->addr < 0 || it->addr + it->count > MBFB_ADDR_SPACE ||
+            it->tier < MBFB_TIER_EVERY || it->tier > MBFB_TIER_FAST)
             return MBFB_E_INVAL;
         words += it->count;
     }
@@ -116,6 +116,7 @@ int mbfb_plan_set(int plan, const mbfb_plan_item_t *items, int n, int period_ms,
     return 0;
 }
 
+/* Stop a plan: running = 0 inside the sequence lock. */
 int mbfb_plan_stop(int plan)
 {
     mbfb_plan_t *p = plan_of(plan);
@@ -125,6 +126,7 @@ int mbfb_plan_stop(int plan)
     return 0;
 }
 
+/* Bump the invalidation generation; the next refresh reads the slow tier. */
 int mbfb_plan_invalidate(int plan)
 {
     mbfb_plan_t *p = plan_of(plan);
@@ -133,6 +135,8 @@ int mbfb_plan_invalidate(int plan)
     return (int)((__atomic_add_fetch(&p->inval_gen, 1u, __ATOMIC_ACQ_REL)) & 0x7FFFFFFFu);
 }
 
+/* One atomic load when nothing is new; else copy the newest snapshot, again if the
+ * worker overwrote it meanwhile. */
 int mbfb_plan_take(int plan, uint32_t *seq, mbfb_snap_t *out)
 {
     mbfb_plan_t *p = plan_of(plan);

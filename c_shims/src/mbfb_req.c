@@ -44,6 +44,7 @@ static mbfb_slot_t *slot_of(int req, uint32_t *gen)
     return &bus->slots[h & (MBFB_MAX_SLOTS - 1)];
 }
 
+/* mbfb_post_write with MBFB_WRITE_IDEMPOTENT (ignored for reads). */
 int mbfb_post(int dev, int fc, int addr, int count, const uint16_t *values)
 {
     return mbfb_post_write(dev, fc, addr, count, values, MBFB_WRITE_IDEMPOTENT);

@@ -11,6 +11,7 @@
 
 #include "mbfb_internal.h"
 
+/* ppoll for input, EINTR retried. */
 int mbfb_fd_wait_input(int fd, int64_t wait_us)
 {
     struct pollfd p = {fd, POLLIN, 0};
@@ -62,6 +63,7 @@ int mbfb_serial_quiet(mbfb_bus_t *bus, int silence_us, int limit_us)
     }
 }
 
+/* Write a whole frame to the non-blocking port. */
 int mbfb_fd_write_all(mbfb_bus_t *bus, const uint8_t *buf, int len)
 {
     int done = 0;

@@ -19,6 +19,7 @@
 
 #include "mbfb_internal.h"
 
+/* Character time, gap and byte timeout from the line settings (file comment). */
 void mbfb_timing_init(mbfb_timing_t *t, int baud, char parity, int data_bits, int stop_bits)
 {
     int bits = 1 + data_bits + (parity == 'N' ? 0 : 1) + stop_bits;
@@ -33,6 +34,7 @@ void mbfb_timing_init(mbfb_timing_t *t, int baud, char parity, int data_bits, in
     t->byte_us = 4 * t->char_us > 20000 ? 4 * t->char_us : 20000;
 }
 
+/* Bytes on the wire of a frame in a framing. */
 int mbfb_wire_len(int framing, int frame_len)
 {
     switch (framing) {
@@ -57,6 +59,7 @@ int mbfb_response_timeout_us(const mbfb_timing_t *t, int framing, int req_frame_
     return (int)(us > min_us ? us : min_us);
 }
 
+/* CLOCK_MONOTONIC in microseconds. */
 int64_t mbfb_now_us(void)
 {
     struct timespec ts;

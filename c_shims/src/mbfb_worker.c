@@ -616,6 +616,7 @@ static void sleep_until(mbfb_bus_t *bus, int64_t until)
 #endif
 }
 
+/* The worker loop: posted requests, the plan due, else sleep (file comment). */
 void *mbfb_worker_main(void *arg)
 {
     mbfb_bus_t *bus = (mbfb_bus_t *)arg;
