@@ -413,3 +413,44 @@ def test_independent_peers_mbpoll_and_pymodbus(line):
     assert st["requests"]["short_3_5"] == 0  # a new mbpoll process each time: long gaps
     assert st["reply_latency"]["count"] == 3 and st["reply_latency"]["min_us"] >= 2000
     assert st["total"]["collisions"] == 0 and st["total"]["dropped_bytes"] == 0
+
+
+def set_port(fd, baud, stop):
+    """A peer sets its port (speed and stop bits: what a pty keeps)."""
+    import termios
+    a = termios.tcgetattr(fd)
+    a[4] = a[5] = getattr(termios, f"B{baud}")
+    a[2] = (a[2] | termios.CSTOPB) if stop == 2 else (a[2] & ~termios.CSTOPB)
+    termios.tcsetattr(fd, termios.TCSANOW, a)
+
+
+def test_ptys_start_at_the_line_settings(line):
+    import termios
+    ln = line("--no-pace", "--baud", "19200", "--format", "8N2")
+    for path in (ln.m, ln.s):
+        fd = ln.open(path)
+        a = termios.tcgetattr(fd)
+        assert a[4] == a[5] == termios.B19200 and a[2] & termios.CSTOPB
+    assert ln.stop() == 0
+
+
+@pytest.mark.parametrize("side,baud,stop", [("m", 9600, 1), ("m", 19200, 2), ("s", 9600, 1),
+                                            ("s", 4800, 2)])
+def test_a_side_off_the_line_gets_framing_errors(line, side, baud, stop):
+    """A peer whose port differs from the line (8N2 at 9600) garbles what it sends and what
+    it hears: bytes arrive as NUL, counted in format_errors; set right, the line is clean."""
+    ln = line("--no-pace", "--baud", "9600", "--format", "8N2")
+    m, s = ln.open(ln.m), ln.open(ln.s)
+    exchange(m, s, b"\x01\x03", b"\x01\x83")                # both on the line: clean
+    set_port(m if side == "m" else s, baud, stop)
+    write_all(m, b"\x01\x03\x00\x00")
+    assert read_n(s, 4) == b"\0\0\0\0"
+    write_all(s, b"\x01\x83\x02")
+    assert read_n(m, 3) == b"\0\0\0"
+    st = ln.stats()
+    assert st["m2s"]["format_errors"] == 4 and st["s2m"]["format_errors"] == 3
+    assert st["total"]["format_errors"] == 7
+    set_port(m if side == "m" else s, 9600, 2)
+    exchange(m, s, b"\x01\x03", b"\x01\x83")
+    assert ln.stats()["total"]["format_errors"] == 7
+    assert ln.stop() == 0
