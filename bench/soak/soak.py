@@ -328,6 +328,22 @@ class Soak:
             self.trace.write(json.dumps({"ev": ev, "t": round(time.monotonic() - self.t0, 6),
                                          **kw}) + "\n")
 
+    def hold_pty(self):
+        """Keep the simulator's current pty allocated while the soak runs.
+
+        The simulator's reopen_port leaves its --link naming the old pty during the down
+        time; if another program on the machine (a test, another simulator) is given that
+        pty number meanwhile, the shims reopening the link would talk to it. Holding the
+        slave side open keeps the number from being reused (opening it then fails, as for a
+        port that is gone); the soak never reads from it, so it takes no bytes."""
+        try:
+            fd = os.open(os.path.realpath(self.link), os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+        except OSError:
+            return
+        if self.held_fd is not None:
+            os.close(self.held_fd)
+        self.held_fd = fd
+
     # ---- faults ----
     def pick_fault(self):
         kinds = list(WEIGHTS)
@@ -489,6 +505,8 @@ class Soak:
         link = os.path.join(tmp, "rs485")
         self.events_done = []
         self.reopen_at = None
+        self.link = link
+        self.held_fd = None
         devices = [d.spec for d in self.devs]
         try:
             self.sim = self.simctl.Simulator(devices, baud=a.baud, fmt=a.format, seed=a.seed,
@@ -498,8 +516,11 @@ class Soak:
             shutil.rmtree(tmp, ignore_errors=True)
             die(f"simulator did not start: {str(err).splitlines()[0]}")
         try:
+            self.hold_pty()
             return self._run(link)
         finally:
+            if self.held_fd is not None:
+                os.close(self.held_fd)
             self.sim.stop()
             self.shims.lib.mbfb_shutdown()
             shutil.rmtree(tmp, ignore_errors=True)
@@ -524,6 +545,7 @@ class Soak:
             if self.events_done:
                 self.events_done.clear()
                 self.events_busy = 0
+                self.hold_pty()   # the port is back: hold its new pty number
             for dev in self.devs:
                 if dev.out is not None:
                     st = self.shims.lib.mbfb_poll(dev.out["h"])
