@@ -1,0 +1,496 @@
+"""Wire pace: how much of a paced RS-485 line each kind of master uses (issue 10, item 5).
+
+    .venv/bin/python bench/wire_pace.py                      # before (pinned commit) and after (working tree)
+    .venv/bin/python bench/wire_pace.py --variant now=worktree --runs 1 --seconds 3   # quick look
+
+Not a test: it prints figures (bench/README.md, "Wire pace"). In ONE run, on lines paced by
+ptyline (tools/sim/ptyline, 1..10 ms device turnaround, seeded), for each variant (a commit
+exported with `git archive` and built in a temp dir, or the working tree) it measures, side by
+side and interleaved (run 1 of every cell, then run 2, ...):
+
+* one MV-D94 at 9600 8N2 (the simulated MV-D94 stops at 19200) and one MT-S9 at 115200 8N1:
+  the shims polling back to back through their public API (bench/wirepace/wp_shims.c, `post`;
+  also `plan` when mbfb.h has plans), the device block (TempCtrl_MVD94 / Counter_MTS9,
+  Period T#0s) in an ST program run in real time at task intervals 1, 20, 50 and 100 ms
+  (bench/wirepace/wp_host.cpp, compiled as OpenPLC does: iec2c, g++ -O0), mbpoll at its
+  fastest (-l 10), and a plain libmodbus loop (bench/wirepace/wp_lm.c, Debian's libmodbus);
+* the three-device line: MV-D94, FDC-100 and MT-S9 on one 9600 8N2 line, each block with
+  Period T#0s in one program: refreshes per second per device;
+* the scale run: 8 buses x 32 MT-S9 at 115200 (8 simulator processes on ptys, pacing their
+  own replies), one Counter_MTS9 each in one generated program, against the same program
+  with one device: scan time and its jitter, refreshes per device, worker CPU.
+
+Figures from ptyline's frame log (wire times), in a window of --seconds after --warmup:
+tx/s = requests sent; share = sum over those requests of (t3.5 + request bytes + the reply's
+measured turnaround + reply bytes) / window, i.e. tx/s x the shortest compliant transaction
+(1.00 = the wire's limit for that device; over 1 only when a master skips the t3.5 silence);
+"< t3.5" = requests sent after less silence than t3.5 (3.5 characters; the spec's fixed
+1.75 ms above 19200 baud, also in the share); gap = median silence
+before a request. Three runs (--runs), medians. Everything listens on ptys only, every
+process is stopped by pid, the temp dir is removed.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import signal
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+HERE = os.path.join(ROOT, "bench", "wirepace")
+sys.path.insert(0, os.path.join(ROOT, "tools", "sim"))
+from simctl import Simulator  # noqa: E402
+
+BEFORE = "12e63ec"   # before the plan-based device blocks: shims with plans, st_src blocks on post/poll/take
+INTERVALS = (1, 20, 50, 100)
+# (key, title, baud, format, simulator device, block, FC, address, count for the C masters)
+LINES = (("mv", "MV-D94 9600 8N2", 9600, "8N2", "mvd94:1", "TempCtrl_MVD94", 3, 0, 17),
+         ("mt", "MT-S9 115200 8N1", 115200, "8N1", "mts9:1", "Counter_MTS9", 3, 0, 10))
+
+
+def log(msg: str) -> None:
+    print(msg, file=sys.stderr, flush=True)
+
+
+def run(cmd, **kw):
+    kw.setdefault("check", True)
+    kw.setdefault("capture_output", True)
+    kw.setdefault("text", True)
+    try:
+        return subprocess.run(cmd, **kw)
+    except subprocess.CalledProcessError as e:
+        raise SystemExit(f"failed: {' '.join(map(str, cmd))}\n{(e.stdout or '')[-1500:]}{(e.stderr or '')[-3000:]}")
+
+
+def stop(proc: subprocess.Popen, sig=signal.SIGTERM, timeout=10.0) -> None:
+    if proc.poll() is None:
+        proc.send_signal(sig)
+        try:
+            proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+def cache_value(build: str, key: str) -> str | None:
+    with open(os.path.join(build, "CMakeCache.txt"), encoding="utf-8") as fh:
+        for line in fh:
+            if line.startswith(key + ":"):
+                return line.split("=", 1)[1].strip()
+    return None
+
+
+class Variant:
+    """One version of the code: its sources (a commit's or the working tree), built in work."""
+
+    def __init__(self, name: str, ref: str, work: str):
+        self.name, self.ref = name, ref
+        self.dir = os.path.join(work, name)
+        os.makedirs(self.dir)
+        if ref == "worktree":
+            self.src = ROOT
+        else:
+            self.src = os.path.join(self.dir, "src")
+            os.makedirs(self.src)
+            arch = subprocess.Popen(["git", "-C", ROOT, "archive", ref], stdout=subprocess.PIPE)
+            run(["tar", "-x", "-C", self.src], stdin=arch.stdout)
+            if arch.wait() != 0:
+                raise SystemExit(f"git archive {ref} failed")
+        self.build = os.path.join(self.dir, "build")
+        log(f"[{name}] building {ref} (shims, ptyline) ...")
+        run(["cmake", "-S", self.src, "-B", self.build, "-G", "Ninja",
+             "-DCMAKE_BUILD_TYPE=RelWithDebInfo"])
+        run(["cmake", "--build", self.build, "-j2", "--target", "mbfb", "mbfb-ptyline"])
+        # OpenPLC's iec2c, its ST library and its C headers: programs are built as OpenPLC does
+        self.home = (cache_value(self.build, "OPENPLC_HOME") or os.environ.get("OPENPLC_HOME")
+                     or "/opt/OpenPLC_v3")
+        self.iec2c = os.path.join(self.home, "webserver", "iec2c")
+        if not os.path.exists(self.iec2c):
+            raise SystemExit(f"no iec2c at {self.iec2c}: set OPENPLC_HOME (OpenPLC v3 with matiec)")
+        self.lm = cache_value(self.build, "MBFB_LM_OPENPLC_LIB") or cache_value(self.build, "MBFB_LM_DEBIAN_LIB")
+        self.lm_debian = cache_value(self.build, "MBFB_LM_DEBIAN_LIB")
+        self.lib = os.path.join(self.build, "c_shims", "libmbfb.a")
+        self.ptyline = os.path.join(self.build, "tools", "sim", "ptyline", "mbfb-ptyline")
+        self.header = open(os.path.join(self.src, "c_shims", "include", "mbfb.h"), encoding="utf-8").read()
+        self.has_plans = "mbfb_plan_take" in self.header
+        self.shims = os.path.join(self.dir, "wp_shims")
+        run(["gcc", "-O2", "-I", os.path.join(self.src, "c_shims", "include"), "-o", self.shims,
+             os.path.join(HERE, "wp_shims.c"), self.lib, self.lm, "-lpthread",
+             f"-Wl,-rpath,{os.path.dirname(self.lm)}"])
+        self.st = sorted(os.path.join(self.src, "st_src", f)
+                         for f in os.listdir(os.path.join(self.src, "st_src")) if f.endswith(".st"))
+        self.programs: dict[str, str] = {}
+
+    def compile(self, key: str, program: str) -> str:
+        """iec2c + g++ -O0 (as OpenPLC builds a program) with wp_host.cpp; returns the executable."""
+        work = os.path.join(self.dir, "st-" + key)
+        os.makedirs(work)
+        text = "".join(open(f, encoding="utf-8").read() + "\n" for f in self.st)
+        with open(os.path.join(work, "program.st"), "w", encoding="utf-8") as fh:
+            fh.write(text + program)
+        run([self.iec2c, "-f", "-l", "-p", "-r", "-R", "-a", "-I",
+             os.path.join(self.home, "webserver", "lib"), "program.st"], cwd=work)
+        exe = os.path.join(work, "prog")
+        run(["g++", "-std=gnu++11", "-O0", "-w", "-I", os.path.join(self.home, "webserver", "core", "lib"),
+             "-I", os.path.join(self.src, "c_shims", "include"), "-I", HERE, "-I", work,
+             "-include", "mbfb.h", "-include", "wp_host.h", "-o", exe, "Config0.c", "Res0.c",
+             os.path.join(HERE, "wp_host.cpp"), self.lib, self.lm, "-lpthread",
+             f"-Wl,-rpath,{os.path.dirname(self.lm)}"], cwd=work)
+        self.programs[key] = exe
+        return exe
+
+
+# ---- ST programs (task INTERVAL 1 ms; wp_host sets the real interval at run time) -------------
+
+CONFIG = """
+CONFIGURATION Config0
+  RESOURCE Res0 ON PLC
+    TASK task0(INTERVAL := T#1ms, PRIORITY := 0);
+    PROGRAM instance0 WITH task0 : main;
+  END_RESOURCE
+END_CONFIGURATION
+"""
+
+
+def device_program(block: str, port: str, baud: int, fmt: str) -> str:
+    return f"""
+PROGRAM main
+  VAR
+    l : MB_LINE := (Baud := {baud}, Parity := 'N', StopBits := {fmt[2]});
+    dev : {block};
+  END_VAR
+  dev(Enable := TRUE, Port := '{port}', SlaveId := 1, Line := l, Period := T#0s);
+  IF dev.Valid AND dev.Age = T#0s THEN {{{{ wp_pub(0); }}}} END_IF;
+END_PROGRAM
+""" + CONFIG
+
+
+def three_program(port: str) -> str:
+    return f"""
+PROGRAM main
+  VAR
+    l : MB_LINE := (Baud := 9600, Parity := 'N', StopBits := 2);
+    mv : TempCtrl_MVD94;
+    fdc : FDC_Controller;
+    ct : Counter_MTS9;
+  END_VAR
+  mv(Enable := TRUE, Port := '{port}', SlaveId := 1, Line := l, Period := T#0s);
+  fdc(Enable := TRUE, Port := '{port}', SlaveId := 2, Line := l, Period := T#0s);
+  ct(Enable := TRUE, Port := '{port}', SlaveId := 3, Line := l, Period := T#0s);
+  IF mv.Valid AND mv.Age = T#0s THEN {{{{ wp_pub(0); }}}} END_IF;
+  IF fdc.Valid AND fdc.Age = T#0s THEN {{{{ wp_pub(1); }}}} END_IF;
+  IF ct.Valid AND ct.Age = T#0s THEN {{{{ wp_pub(2); }}}} END_IF;
+END_PROGRAM
+""" + CONFIG
+
+
+def scale_program(ports: list[str], per_bus: int) -> str:
+    decl, body = [], []
+    for b, port in enumerate(ports):
+        for s in range(per_bus):
+            n = b * per_bus + s
+            decl.append(f"    d{n} : Counter_MTS9;")
+            body.append(f"  d{n}(Enable := TRUE, Port := '{port}', SlaveId := {s + 1}, Line := l, "
+                        f"Period := T#0s);\n"
+                        f"  IF d{n}.Valid AND d{n}.Age = T#0s THEN {{{{ wp_pub({n}); }}}} END_IF;")
+    return ("\nPROGRAM main\n  VAR\n    l : MB_LINE := (Baud := 115200);\n" + "\n".join(decl)
+            + "\n  END_VAR\n" + "\n".join(body) + "\nEND_PROGRAM\n" + CONFIG)
+
+
+# ---- a paced line ------------------------------------------------------------------------------
+
+class Line:
+    """ptyline (frame log) + the simulator on its S side; masters open self.m (a symlink)."""
+
+    def __init__(self, ptyline: str, tmp: str, name: str, baud: int, fmt: str, devices: list[str]):
+        self.baud, self.fmt = baud, fmt
+        bits = 1 + int(fmt[0]) + (fmt[1] != "N") + int(fmt[2])
+        self.char_us = bits * 1e6 / baud
+        # t3.5 as the Modbus serial line spec has it: 3.5 characters, fixed 1750 us above 19200
+        self.t35_us = 3.5 * self.char_us if baud <= 19200 else 1750.0
+        self.m = os.path.join(tmp, name)
+        self.logf = os.path.join(tmp, name + ".log")
+        self.statsf = os.path.join(tmp, name + ".json")
+        self.proc = subprocess.Popen([ptyline, "--baud", str(baud), "--format", fmt,
+                                      "--turnaround-ms", "1:10", "--seed", "1", "--log", self.logf,
+                                      "--stats", self.statsf, "--link-m", self.m],
+                                     stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+        ports = {}
+        for _ in range(2):
+            k, v = self.proc.stdout.readline().split()
+            ports[k] = v
+        self.ready = time.monotonic()
+        self.sim = Simulator(devices, transport="serial", serial=ports["S"], baud=baud, fmt=fmt, seed=1)
+        try:
+            self.sim.start()
+        except BaseException:
+            stop(self.proc)
+            raise
+
+    def now_us(self) -> float:
+        return (time.monotonic() - self.ready) * 1e6
+
+    def close(self) -> None:
+        self.sim.stop()
+        stop(self.proc)
+
+    def frames(self) -> list[tuple[float, str, int, int]]:
+        """[(start_us, 'M>S'|'S>M', nbytes, first byte)]"""
+        out = []
+        with open(self.logf, encoding="utf-8") as fh:
+            for line in fh:
+                p = line.split()
+                if len(p) >= 3:
+                    out.append((float(p[0]), p[1].rstrip("*"), len(p) - 2, int(p[2], 16)))
+        return out
+
+    def figures(self, t0: float, t1: float) -> dict:
+        """Requests starting in [t0, t1) (line time, us): see the module's docstring."""
+        fr = self.frames()
+        n, short, busy, gaps, turns = 0, 0, 0.0, [], []
+        per_addr: dict[int, int] = {}
+        for i, (t, d, nb, a) in enumerate(fr):
+            if d != "M>S" or not t0 <= t < t1:
+                continue
+            n += 1
+            per_addr[a] = per_addr.get(a, 0) + 1
+            if i > 0:
+                pt, _, pn, _ = fr[i - 1]
+                gap = t - (pt + pn * self.char_us)
+                gaps.append(gap)
+                short += gap < self.t35_us
+            cost = self.t35_us + nb * self.char_us
+            if i + 1 < len(fr) and fr[i + 1][1] == "S>M":
+                turn = fr[i + 1][0] - (t + nb * self.char_us)
+                turns.append(turn)
+                cost += turn + fr[i + 1][2] * self.char_us
+            busy += cost
+        win = (t1 - t0) / 1e6
+        return {"tx": n / win, "share": busy / 1e6 / win, "short": short / n if n else 0.0,
+                "gap_ms": statistics.median(gaps) / 1000 if gaps else float("nan"),
+                "turn_ms": statistics.mean(turns) / 1000 if turns else float("nan"),
+                "per_addr": {a: c / win for a, c in per_addr.items()}}
+
+
+def timed_master(line: Line, cmd: list[str], warmup: float, seconds: float, self_timed=False):
+    """Runs a master on the line; returns (figures in the window, its stdout)."""
+    start = line.now_us()
+    out = tempfile.TemporaryFile(mode="w+")
+    proc = subprocess.Popen(cmd, stdout=out, stderr=subprocess.STDOUT, text=True)
+    try:
+        if self_timed:
+            proc.wait(warmup + seconds + 60)
+        else:
+            time.sleep(warmup + seconds + 0.3)
+    finally:
+        stop(proc, signal.SIGINT)
+    out.seek(0)
+    text = out.read()
+    out.close()
+    if proc.returncode not in (0, -signal.SIGINT, -signal.SIGTERM):
+        raise SystemExit(f"{' '.join(cmd)} exited {proc.returncode}:\n{text[-2000:]}")
+    t0 = start + warmup * 1e6
+    return line.figures(t0, t0 + seconds * 1e6), text
+
+
+def host_json(text: str) -> dict:
+    for ln in text.splitlines():
+        if ln.startswith("{"):
+            return json.loads(ln)
+    raise SystemExit(f"program printed no result:\n{text[-2000:]}")
+
+
+# ---- the benchmark ----------------------------------------------------------------------------
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--variant", action="append", metavar="NAME=REF",
+                    help=f"a commit or 'worktree' (repeatable; default before={BEFORE} after=worktree)")
+    ap.add_argument("--runs", type=int, default=3)
+    ap.add_argument("--seconds", type=float, default=3.0, help="measuring window per cell")
+    ap.add_argument("--warmup", type=float, default=1.0)
+    ap.add_argument("--intervals", default=",".join(map(str, INTERVALS)))
+    ap.add_argument("--three-task-ms", type=int, default=20)
+    ap.add_argument("--three-seconds", type=float, default=6.0)
+    ap.add_argument("--scale", default="8x32", help="BUSESxDEVICES, or 0 to skip the scale run")
+    ap.add_argument("--scale-task-ms", type=int, default=20)
+    ap.add_argument("--scale-seconds", type=float, default=6.0)
+    ap.add_argument("--skip", default="", help="comma list of: lines,three,scale")
+    args = ap.parse_args()
+    skip = set(filter(None, args.skip.split(",")))
+    intervals = [int(x) for x in args.intervals.split(",") if x]
+    variants = [v.split("=", 1) for v in (args.variant or [f"before={BEFORE}", "after=worktree"])]
+    if any(len(v) != 2 or not v[0].isidentifier() for v in variants):
+        raise SystemExit("--variant wants NAME=REF (REF: a commit or 'worktree')")
+    if not shutil.which("mbpoll"):
+        raise SystemExit("mbpoll not found (Debian package mbpoll)")
+    buses, per_bus = (0, 0) if args.scale == "0" else map(int, args.scale.split("x"))
+    tmp = tempfile.mkdtemp(prefix="wirepace-")
+    procs_started = time.monotonic()
+    try:
+        V = [Variant(name, ref, tmp) for name, ref in variants]
+        ptyline = V[-1].ptyline                       # one line model for every variant
+        lm_exe = os.path.join(tmp, "wp_lm")
+        deb = V[-1].lm_debian
+        run(["gcc", "-O2", "-I", "/usr/include/modbus", "-o", lm_exe, os.path.join(HERE, "wp_lm.c"),
+             deb, f"-Wl,-rpath,{os.path.dirname(deb)}"])
+        ports = {k: os.path.join(tmp, k) for k, *_ in LINES}
+        ports["three"] = os.path.join(tmp, "three")
+        scale_ports = [os.path.join(tmp, f"bus{b}") for b in range(buses)]
+        for v in V:
+            log(f"[{v.name}] compiling the ST programs (iec2c, g++ -O0) ...")
+            if "lines" not in skip:
+                for key, _, baud, fmt, _, block, *_ in LINES:
+                    v.compile(key, device_program(block, ports[key], baud, fmt))
+            if "three" not in skip:
+                v.compile("three", three_program(ports["three"]))
+            if "scale" not in skip and buses:
+                v.compile("scale", scale_program(scale_ports, per_bus))
+                v.compile("scale1", scale_program(scale_ports[:1], 1))
+        res: dict = {}
+
+        def add(key, value):
+            res.setdefault(key, []).append(value)
+
+        for r in range(args.runs):
+            if "lines" not in skip:
+                for key, title, baud, fmt, dev, block, fc, addr, count in LINES:
+                    log(f"run {r + 1}/{args.runs}: {title}")
+                    line = Line(ptyline, tmp, key, baud, fmt, [dev])
+                    try:
+                        cargs = [line.m, str(baud), fmt, "1", str(fc), str(addr), str(count)]
+                        for v in V:
+                            add((key, v.name, "shims"), timed_master(line, [v.shims, "post"] + cargs,
+                                                                      args.warmup, args.seconds)[0])
+                            if v.has_plans:
+                                add((key, v.name, "plan"), timed_master(line, [v.shims, "plan"] + cargs,
+                                                                         args.warmup, args.seconds)[0])
+                            for ms in intervals:
+                                f, _ = timed_master(line, [v.programs[key], str(args.warmup), str(args.seconds),
+                                                           str(ms)], args.warmup, args.seconds, True)
+                                add((key, v.name, f"block{ms}"), f)
+                        add((key, "", "mbpoll"), timed_master(line, [
+                            "mbpoll", "-m", "rtu", "-b", str(baud), "-d", "8", "-P", "none", "-s", fmt[2],
+                            "-a", "1", "-t", "4" if fc == 3 else "3", "-0", "-r", str(addr), "-c", str(count),
+                            "-l", "10", "-q", line.m], args.warmup, args.seconds)[0])
+                        add((key, "", "lm"), timed_master(line, [lm_exe] + cargs, args.warmup, args.seconds)[0])
+                    finally:
+                        line.close()
+            if "three" not in skip:
+                log(f"run {r + 1}/{args.runs}: three devices")
+                line = Line(ptyline, tmp, "three", 9600, "8N2", ["mvd94:1", "fdc100:2", "mts9:3"])
+                try:
+                    for v in V:
+                        f, out = timed_master(line, [v.programs["three"], str(args.warmup),
+                                                     str(args.three_seconds), str(args.three_task_ms)],
+                                              args.warmup, args.three_seconds, True)
+                        h = host_json(out)
+                        pubs = (h["pubs"] + [0, 0, 0])[:3]
+                        add(("three", v.name), {"pubs": [p / h["window_s"] for p in pubs],
+                                                "tx": [f["per_addr"].get(a, 0.0) for a in (1, 2, 3)],
+                                                "share": f["share"], "short": f["short"]})
+                finally:
+                    line.close()
+            if "scale" not in skip and buses:
+                log(f"run {r + 1}/{args.runs}: scale {buses} x {per_bus}")
+                sims = []
+                try:
+                    for b in range(buses):
+                        s = Simulator([f"mts9:{a}" for a in range(1, per_bus + 1)], baud=115200, fmt="8N1",
+                                      pace=True, seed=b + 1, link=scale_ports[b], extra=["--ptyline", "none"])
+                        sims.append(s)
+                        s.start()
+                    for v in V:
+                        for key, ndev in (("scale1", 1), ("scale", buses * per_bus)):
+                            p = subprocess.run([v.programs[key], str(args.warmup), str(args.scale_seconds),
+                                                str(args.scale_task_ms)], capture_output=True, text=True,
+                                               timeout=args.warmup + args.scale_seconds + 120)
+                            h = host_json(p.stdout)
+                            pubs = (h["pubs"] + [0] * ndev)[:ndev]
+                            h["rates"] = [x / h["window_s"] for x in pubs]
+                            add((key, v.name), h)
+                finally:
+                    for s in sims:
+                        s.stop()
+        report(res, V, intervals, args, buses, per_bus)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    log(f"total {time.monotonic() - procs_started:.0f} s")
+    return 0
+
+
+def med(values):
+    return statistics.median(values) if values else float("nan")
+
+
+def report(res, V, intervals, args, buses, per_bus) -> None:
+    names = [v.name for v in V]
+    print(f"# Wire pace: {', '.join(f'{v.name} = {v.ref}' for v in V)}; {args.runs} runs, medians; "
+          f"window {args.seconds:g} s after {args.warmup:g} s\n")
+    if "lines" not in args.skip:
+        rows = [("shims", "c_shims polling back to back (post/poll/take)")]
+        if any(v.has_plans for v in V):
+            rows.append(("plan", "c_shims plan, period 0 (plan_take every 1 ms)"))
+        rows += [(f"block{ms}", f"device block, task {ms} ms") for ms in intervals]
+        head = ("| master | " + " | ".join(f"{t.split()[0]} tx/s | share | < t3.5 | gap ms" for _, t, *_ in LINES)
+                + " |")
+        print(head)
+        print("|---" * (1 + 4 * len(LINES)) + "|")
+
+        def cells(key, vname, row):
+            fs = res.get((key, vname, row))
+            if not fs:
+                return "- | - | - | -"
+            return (f"{med([f['tx'] for f in fs]):.1f} | {med([f['share'] for f in fs]):.2f} | "
+                    f"{med([f['short'] for f in fs]):.0%} | {med([f['gap_ms'] for f in fs]):.1f}")
+
+        for row, label in rows:
+            for n in names:
+                tag = f" ({n})" if len(names) > 1 else ""
+                print(f"| {label}{tag} | " + " | ".join(cells(k, n, row) for k, *_ in LINES) + " |")
+        print("| mbpoll -l 10 (its fastest) | " + " | ".join(cells(k, "", "mbpoll") for k, *_ in LINES) + " |")
+        print("| plain libmodbus loop | " + " | ".join(cells(k, "", "lm") for k, *_ in LINES) + " |")
+        turns = [f["turn_ms"] for k in res if len(k) == 3 for f in res[k]]
+        print(f"\nDevice turnaround measured on the wire (request end to reply start): median "
+              f"{med(turns):.2f} ms. C masters read FC03 " + ", ".join(
+                  f"{t.split()[0]} {c} registers at {a}" for _, t, _, _, _, _, _, a, c in LINES) + ".")
+    if "three" not in args.skip:
+        print(f"\n## Three devices on one 9600 8N2 line (Period T#0s each, task {args.three_task_ms} ms)\n")
+        print("| variant | MV-D94 refreshes/s | FDC-100 | MT-S9 | MV-D94 tx/s | FDC tx/s | MT-S9 tx/s | "
+              "line share | < t3.5 |")
+        print("|---|---|---|---|---|---|---|---|---|")
+        for n in names:
+            fs = res.get(("three", n), [])
+            if fs:
+                p = [med([f["pubs"][i] for f in fs]) for i in range(3)]
+                t = [med([f["tx"][i] for f in fs]) for i in range(3)]
+                print(f"| {n} | {p[0]:.2f} | {p[1]:.2f} | {p[2]:.2f} | {t[0]:.1f} | {t[1]:.1f} | {t[2]:.1f} | "
+                      f"{med([f['share'] for f in fs]):.2f} | {med([f['short'] for f in fs]):.0%} |")
+    if "scale" not in args.skip and buses:
+        print(f"\n## Scale: {buses} buses x {per_bus} MT-S9 at 115200 (simulators pace their replies), "
+              f"one Counter_MTS9 each in one program, task {args.scale_task_ms} ms; against 1 device\n")
+        print("| variant | devices | scan us median | p99 | max | sd | start jitter us p99 | "
+              "refreshes/s per device min / median / max | devices never refreshed | worker CPU % | scan thread CPU % |")
+        print("|---|---|---|---|---|---|---|---|---|---|---|")
+        for n in names:
+            for key, nd in (("scale1", 1), ("scale", buses * per_bus)):
+                hs = res.get((key, n), [])
+                if not hs:
+                    continue
+                g = lambda f: med([f(h) for h in hs])  # noqa: E731
+                print(f"| {n} | {nd} | {g(lambda h: h['scan_us']['median']):.1f} | "
+                      f"{g(lambda h: h['scan_us']['p99']):.1f} | {g(lambda h: h['scan_us']['max']):.0f} | "
+                      f"{g(lambda h: h['scan_us']['sd']):.1f} | {g(lambda h: h['start_jitter_us']['p99']):.0f} | "
+                      f"{g(lambda h: min(h['rates'])):.2f} / {g(lambda h: statistics.median(h['rates'])):.2f} / "
+                      f"{g(lambda h: max(h['rates'])):.2f} | {g(lambda h: sum(1 for x in h['rates'] if x == 0)):.0f} | "
+                      f"{g(lambda h: h['cpu']['others_pct']):.1f} | {g(lambda h: h['cpu']['main_pct']):.1f} |")
+
+
+if __name__ == "__main__":
+    sys.exit(main())
