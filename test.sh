@@ -14,7 +14,7 @@ mkdir -p "$b"
 log=$b/configure.log
 set +e
 cmake -S . -B "$b" -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo 2>&1 | tee "$log" |
-    grep --line-buffered -E -- '^-- (toolchain|matiec|OpenPLC v3 runtime|c_shims: (libmodbus|OpenPLC)|fb|plc_lib):|Error'
+    grep --line-buffered -E -- '^-- ((toolchain|matiec|OpenPLC v3 runtime|fb|plc_lib):|c_shims: (libmodbus|OpenPLC))|Error'
 status=${PIPESTATUS[0]}
 set -e
 if [ "$status" != 0 ]; then

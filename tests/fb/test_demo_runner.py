@@ -2,7 +2,8 @@
 
 Two toolchains (argument):
   home    (fb_demo_runner) a matiec-only MATIEC_HOME: the MATIEC_HOME you have, or one laid
-          out in a temp dir from OpenPLC's files (iec2c, lib/*.txt, lib/C/*.h as symlinks);
+          out in a temp dir from OpenPLC's files (iec2c, lib/*.txt, lib/C/*.h as symlinks),
+          or the matiec the build made from source (MBFB_MATIEC_BUILD, set by ctest);
   source  (fb_demo_source) the embedded default without network: no MATIEC_HOME, no iec2c on
           PATH, and matiec given only as a source tree (MATIEC_SOURCE_DIR, else OpenPLC's own
           $OPENPLC_HOME/utils/matiec_src), which the build copies and builds into its own tree.
@@ -66,7 +67,12 @@ def matiec_home(tmp):
     web = os.path.join(oplc, "webserver")
     if not all(os.path.exists(os.path.join(web, p))
                for p in ("iec2c", "lib/ieclib.txt", "core/lib/iec_std_lib.h")):
-        skip(f"no matiec: MATIEC_HOME unset and no OpenPLC v3 at {oplc} to take iec2c from")
+        # the matiec the build made from source (tools/matiec), a matiec build like any other
+        built = os.environ.get("MBFB_MATIEC_BUILD")
+        if built and os.path.exists(os.path.join(built, "iec2c")):
+            return built
+        skip(f"no matiec: MATIEC_HOME unset, no OpenPLC v3 at {oplc} to take iec2c from, "
+             "and the build made none from source")
     view = os.path.join(tmp, "matiec")
     os.makedirs(os.path.join(view, "lib"))
     os.symlink(os.path.join(web, "iec2c"), os.path.join(view, "iec2c"))
