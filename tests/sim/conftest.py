@@ -40,9 +40,13 @@ def instrument(port, addr, mode="rtu", baud=9600, parity="N", stop=2, timeout=0.
     """A minimalmodbus Instrument on the pty (closes the port after each call)."""
     import minimalmodbus
     import serial
-    # minimalmodbus reuses one Serial object per port name, opened with the previous settings:
-    # on a pty an open whose only change is parity fails (EINVAL), so start from a fresh one.
-    getattr(minimalmodbus, "_serialports", {}).pop(port, None)
+    # minimalmodbus reuses one Serial object per port name and reopens it with the previous
+    # settings. A pty keeps no parity, and refuses (EINVAL) a tcsetattr whose only change is
+    # parity: so with parity, or after it, start from a fresh Serial, which minimalmodbus opens
+    # at 19200 first (then the real open changes the speed too and is accepted).
+    cached = getattr(minimalmodbus, "_serialports", {}).get(port)
+    if parity != "N" or (cached is not None and cached.parity != serial.PARITY_NONE):
+        minimalmodbus._serialports.pop(port, None)  # pylint: disable=protected-access
     inst = minimalmodbus.Instrument(port, addr, mode=mode, close_port_after_each_call=True)
     inst.serial.baudrate = baud
     inst.serial.parity = {"N": serial.PARITY_NONE, "E": serial.PARITY_EVEN,

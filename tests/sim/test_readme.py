@@ -8,6 +8,7 @@ import shlex
 import shutil
 import signal
 import subprocess
+import sys
 import tempfile
 
 import pytest
@@ -60,7 +61,7 @@ def pattern(expected: str, tmp: str) -> str:
 def test_readme_command(cmd, expected, follow):
     with tempfile.TemporaryDirectory(prefix="mbsim-readme-") as tmp:
         args = shlex.split(cmd.replace("/tmp/", tmp + "/"))
-        args[0] = simctl.VENV_PYTHON if os.path.exists(simctl.VENV_PYTHON) else args[0]
+        args[0] = simctl.VENV_PYTHON if os.path.exists(simctl.VENV_PYTHON) else sys.executable
         proc = subprocess.Popen(args, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                 text=True)
         try:
