@@ -197,6 +197,22 @@ def test_reopen_port_keeps_the_link(tmp_path):
         new.close()
 
 
+def test_reopen_port_never_hands_the_old_pty_number_on(tmp_path):
+    """While the port is down the old pty keeps its number, so the link never names a pty
+    another program may have got meanwhile; the new pty has another number."""
+    link = str(tmp_path / "line")
+    with simctl.Simulator(["mvd94:1:SV=1000"], link=link) as s:
+        before = os.path.realpath(link)
+        s.ctl("reopen_port", down_ms=100)
+        after = os.path.realpath(link)
+        assert after != before and after.startswith("/dev/pts/")
+        raw = simctl_raw(link)
+        try:
+            assert hexu(raw.xfer(READ)) == GOOD
+        finally:
+            raw.close()
+
+
 def test_faults_file_scripted(tmp_path):
     script = [{"addr": 1, "kind": "exception", "code": 4},
               {"op": "offline", "addr": 1, "on": True, "at_ms": 700}]

@@ -120,10 +120,19 @@ class SerialLine:
             os.unlink(self.link)
 
     async def reopen(self, down_ms: float) -> str:
-        """Close the port (masters see it vanish), wait, open again (same --link path)."""
-        self.close(remove_link=False)
-        await asyncio.sleep(down_ms / 1000.0)
-        self._open()
+        """Close the port (masters see it vanish), wait, open again (same --link path).
+        On our own pty the old pty's number stays taken (its slave end held) until the link
+        names the new one: a master reopening the link meanwhile finds a dead pty, never
+        another program's pty that got the number."""
+        hold = self.slave_fd if self.device is None and self.ptyline is None else None
+        self.slave_fd = None
+        try:
+            self.close(remove_link=False)
+            await asyncio.sleep(down_ms / 1000.0)
+            self._open()
+        finally:
+            if hold is not None:
+                os.close(hold)
         return self.link or self.path
 
     # ----- receive: frame end by length (pymodbus PDU sizes) or by t3.5 silence -----
