@@ -51,6 +51,8 @@ def run_bad(*args):
     (["--pty", "--format", "8N1", "--device", "mvd94:1"], "speaks 8N2"),
     (["--pty", "--baud", "115200", "--device", "fdc100:1"], "cannot run at 115200"),
     (["--pty", "--device", "mvd94:x"], "mvd94:x"),
+    (["--pty", "--device", "mvd94:1:SV=abc"], "SV=abc: not a number"),
+    (["--pty", "--device", "mvd94:1:TYPE=Q"], "TYPE=Q: not a number or one of J, K"),
     (["--pty", "--device", "mvd94:1", "--faults", "/nonexistent/faults.json"], "faults.json"),
     (["--pty", "--device", "mvd94:1", "--control", "/nonexistent/dir/c.sock"], "c.sock"),
     (["--pty", "--device", "mvd94:1", "--no-such-option"], "unrecognized"),

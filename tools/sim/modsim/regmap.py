@@ -203,7 +203,12 @@ class Device:
     def set_eng(self, name: str, value):
         """Start-up option NAME=VALUE; the range is checked like a master's write would be."""
         reg = self.lookup(name)
-        raw = self.from_eng(reg, value)
+        try:
+            raw = self.from_eng(reg, value)
+        except (ValueError, OverflowError):
+            codes = f" or one of {', '.join(reg.codes)}" if reg.codes else ""
+            raise ValueError(f"{self.KIND}:{self.addr}: {name}={value}: not a number{codes}") \
+                from None
         if not self.in_range(reg, raw):
             raise ValueError(f"{self.KIND}:{self.addr}: {name}={value} (raw {raw}) is out of range")
         self.set_raw(reg, raw)
