@@ -51,7 +51,7 @@ To add a register: one entry in the device's `registers`, then `python3 maps/mkd
 | `scale` | key of the device's `scales`: how raw becomes engineering units (`eng = (raw - offset) / 10^decimals`) |
 | `codes` | the table of an index-code register |
 | `range` | raw range accepted on a write (`null`: not checked, or a rule in `note`) |
-| `default` | the factory value where the manual gives one (FDC: Example 1), else the simulator's choice |
+| `default` | raw; the factory value where the manual gives one (FDC: Example 1), else the simulator's choice; in brackets its engineering value with the other defaults (DP, INPT) |
 
 ## Constants in ST (`maps/check_st.py`)
 A `VAR CONSTANT` (or `VAR_GLOBAL CONSTANT`) in `st_src/*.st` whose name starts with a device
@@ -113,9 +113,13 @@ def device_page(m) -> str:
             name += " = " + ", ".join(str(a) for a in r.aliases_at)
         addr = hx(r.addr) + (f"-{hx(r.addr + r.words - 1)}" if r.words > 1 else "")
         src = r.source + (f"; {r.note}" if r.note else "")
+        default = cell(r.default)
+        if r.scale not in ("code", "dpcode", "raw", "U", "int") and r.words == 1:
+            eng = m.to_eng(r, r.default)            # with the other registers' defaults
+            default += f" ({eng:g})" if eng != r.default else ""
         out.append(f"| {addr} | {r.addr} | {cell(name)} | {cell(r.access)} | "
                    f"{','.join(f'{x:02d}' for x in r.fc)} | {r.type} | {r.scale} | "
-                   f"{cell(fmt_range(r))} | {cell(r.unit)} | {cell(r.default)} | {cell(src)} | "
+                   f"{cell(fmt_range(r))} | {cell(r.unit)} | {default} | {cell(src)} | "
                    f"{r.confidence} |")
     out += ["", "Scales:", ""]
     for k, s in d["scales"].items():
