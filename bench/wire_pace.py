@@ -34,6 +34,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import shutil
 import signal
 import statistics
@@ -296,7 +297,10 @@ def timed_master(line: Line, cmd: list[str], warmup: float, seconds: float, self
     if proc.returncode not in (0, -signal.SIGINT, -signal.SIGTERM):
         raise SystemExit(f"{' '.join(cmd)} exited {proc.returncode}:\n{text[-2000:]}")
     t0 = start + warmup * 1e6
-    return line.figures(t0, t0 + seconds * 1e6), text
+    fig = line.figures(t0, t0 + seconds * 1e6)
+    m = re.search(r"^ok (\d+) err (\d+)$", text, re.M)   # wp_shims / wp_lm: whole run
+    fig["failed"] = int(m.group(2)) if m else None
+    return fig, text
 
 
 def host_json(text: str) -> dict:
@@ -324,13 +328,23 @@ def main() -> int:
     ap.add_argument("--skip", default="", help="comma list of: lines,three,scale")
     args = ap.parse_args()
     skip = set(filter(None, args.skip.split(",")))
-    intervals = [int(x) for x in args.intervals.split(",") if x]
+    try:
+        intervals = [int(x) for x in args.intervals.split(",") if x]
+    except ValueError:
+        raise SystemExit(f"--intervals wants milliseconds like 1,20,50,100, not '{args.intervals}'") from None
     variants = [v.split("=", 1) for v in (args.variant or [f"before={BEFORE}", "after=worktree"])]
     if any(len(v) != 2 or not v[0].isidentifier() for v in variants):
         raise SystemExit("--variant wants NAME=REF (REF: a commit or 'worktree')")
     if not shutil.which("mbpoll"):
         raise SystemExit("mbpoll not found (Debian package mbpoll)")
-    buses, per_bus = (0, 0) if args.scale == "0" else map(int, args.scale.split("x"))
+    try:
+        buses, per_bus = (0, 0) if args.scale == "0" else map(int, args.scale.split("x"))
+    except ValueError:
+        raise SystemExit(f"--scale wants BUSESxDEVICES (e.g. 8x32) or 0, not '{args.scale}'") from None
+    if not (0 <= buses <= 64 and 0 <= per_bus <= 247) or min(args.runs, args.seconds, args.warmup + 1) <= 0 \
+            or not intervals or min(intervals) <= 0 or skip - {"lines", "three", "scale"}:
+        raise SystemExit("bad arguments: see --help (runs, seconds > 0; intervals > 0; "
+                         "skip from lines,three,scale; at most 64 buses x 247 devices)")
     tmp = tempfile.mkdtemp(prefix="wirepace-")
     procs_started = time.monotonic()
     try:
@@ -338,7 +352,7 @@ def main() -> int:
         ptyline = V[-1].ptyline                       # one line model for every variant
         lm_exe = os.path.join(tmp, "wp_lm")
         deb = V[-1].lm_debian
-        run(["gcc", "-O2", "-I", "/usr/include/modbus", "-o", lm_exe, os.path.join(HERE, "wp_lm.c"),
+        run(["gcc", "-O2", "-I", cache_value(V[-1].build, "MBFB_LM_DEBIAN_INC"), "-o", lm_exe, os.path.join(HERE, "wp_lm.c"),
              deb, f"-Wl,-rpath,{os.path.dirname(deb)}"])
         ports = {k: os.path.join(tmp, k) for k, *_ in LINES}
         ports["three"] = os.path.join(tmp, "three")
@@ -456,6 +470,11 @@ def report(res, V, intervals, args, buses, per_bus) -> None:
                 print(f"| {label}{tag} | " + " | ".join(cells(k, n, row) for k, *_ in LINES) + " |")
         print("| mbpoll -l 10 (its fastest) | " + " | ".join(cells(k, "", "mbpoll") for k, *_ in LINES) + " |")
         print("| plain libmodbus loop | " + " | ".join(cells(k, "", "lm") for k, *_ in LINES) + " |")
+        failed = [f"{k[0]} {k[2]}{' (' + k[1] + ')' if k[1] and len(names) > 1 else ''}: "
+                  f"{', '.join(str(f['failed']) for f in fs)}"
+                  for k, fs in res.items() if len(k) == 3 and any(f.get("failed") for f in fs)]
+        print("\nFailed transactions (whole run of each C master, per run): "
+              + ("; ".join(failed) if failed else "none") + ".")
         turns = [f["turn_ms"] for k in res if len(k) == 3 for f in res[k]]
         print(f"\nDevice turnaround measured on the wire (request end to reply start): median "
               f"{med(turns):.2f} ms. C masters read FC03 " + ", ".join(
