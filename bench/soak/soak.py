@@ -492,7 +492,8 @@ class Soak:
                 self.note_write(f"failed {result} but applied", dev, rec, now_words)
 
     def note_write(self, what, dev, rec, now_words):
-        if len(self.write_examples) < 20:
+        kind = what.split()[0]   # up to 10 examples of each kind (lost, failed, applied)
+        if sum(e["what"].split()[0] == kind for e in self.write_examples) < 10:
             self.write_examples.append({"what": what, "dev": dev.kind, "fc": rec["fc"],
                                         "addr": rec["addr"], "values": rec["values"],
                                         "device_holds": now_words,
@@ -698,7 +699,7 @@ def print_report(r):
       f"{b['bus_time_s']} s, {b['bus_ms_per_transaction']} ms per transaction")
     for ex in r["wrong_examples"][:5]:
         p(f"  wrong: {ex}")
-    for ex in r["write_examples"][:5]:
+    for ex in r["write_examples"][:12]:
         p(f"  write: {ex}")
     for ex in r["log_examples"][:5]:
         p(f"  applied but not in the log: {ex}")
