@@ -33,7 +33,7 @@ extern "C" {
 #define MBFB_MAX_DEVICES   256
 #define MBFB_PLANS_PER_BUS 64   /* refresh plans per bus (32 devices x 2)         */
 #define MBFB_MAX_PLANS     (MBFB_MAX_BUSES * MBFB_PLANS_PER_BUS)
-#define MBFB_OUTSTANDING_MAX 8  /* reply shapes of failed attempts kept per device */
+#define MBFB_OUTSTANDING_MAX 32 /* reply shapes of failed attempts kept per device */
 #define MBFB_KNOWN_READS   4    /* ranges that read well, remembered per device    */
 
 /* ---- policy ----------------------------------------------------------------- */

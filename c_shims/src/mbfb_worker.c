@@ -415,7 +415,10 @@ static int device_request(mbfb_bus_t *bus, op_t *op)
     if (!bus->be->needs_resync)
         dev->in_step = 1;
     MBFB_DIAG_INC(dev, requests);
-    op->budget = offline ? 1 : 1 + bus->cfg.retries; /* an offline device: one probe */
+    /* One attempt (a probe) for a device in back-off, and for one still out of step
+     * because its previous request ran out of attempts: each failed resync read uses
+     * up a reply shape for MBFB_LATE_MAX_MS, which a dead device must not exhaust. */
+    op->budget = offline || !dev->in_step ? 1 : 1 + bus->cfg.retries;
     op->answered = 0;
     op->sent = 0;
     rc = run_op(bus, op);
