@@ -284,22 +284,26 @@ def timed_master(line: Line, cmd: list[str], warmup: float, seconds: float, self
     start = line.now_us()
     out = tempfile.TemporaryFile(mode="w+")
     proc = subprocess.Popen(cmd, stdout=out, stderr=subprocess.STDOUT, text=True)
+    died = None
     try:
         if self_timed:
             proc.wait(warmup + seconds + 60)
+            died = proc.returncode != 0 and proc.returncode
         else:
             time.sleep(warmup + seconds + 0.3)
+            died = proc.poll()            # a master that ended before it was stopped
     finally:
         stop(proc, signal.SIGINT)
     out.seek(0)
     text = out.read()
     out.close()
-    if proc.returncode not in (0, -signal.SIGINT, -signal.SIGTERM):
-        raise SystemExit(f"{' '.join(cmd)} exited {proc.returncode}:\n{text[-2000:]}")
+    if died is not None and died is not False:
+        raise SystemExit(f"{' '.join(cmd)} exited {died}:\n{text[-2000:]}")
     t0 = start + warmup * 1e6
     fig = line.figures(t0, t0 + seconds * 1e6)
-    m = re.search(r"^ok (\d+) err (\d+)$", text, re.M)   # wp_shims / wp_lm: whole run
-    fig["failed"] = int(m.group(2)) if m else None
+    m = (re.search(r"^ok (\d+) err (\d+)$", text, re.M)   # wp_shims / wp_lm: whole run
+         or re.search(r"transmitted, \d+ received, (\d+) errors", text))   # mbpoll (exits 1 then)
+    fig["failed"] = int(m.group(m.lastindex)) if m else None
     return fig, text
 
 
@@ -473,7 +477,7 @@ def report(res, V, intervals, args, buses, per_bus) -> None:
         failed = [f"{k[0]} {k[2]}{' (' + k[1] + ')' if k[1] and len(names) > 1 else ''}: "
                   f"{', '.join(str(f['failed']) for f in fs)}"
                   for k, fs in res.items() if len(k) == 3 and any(f.get("failed") for f in fs)]
-        print("\nFailed transactions (whole run of each C master, per run): "
+        print("\nFailed transactions (whole run of each C master and mbpoll, per run): "
               + ("; ".join(failed) if failed else "none") + ".")
         turns = [f["turn_ms"] for k in res if len(k) == 3 for f in res[k]]
         print(f"\nDevice turnaround measured on the wire (request end to reply start): median "
