@@ -1,0 +1,273 @@
+#!/usr/bin/env python3
+"""translate.py - the blocks' ST for STruC++ (OpenPLC v4), derived from st_src/*.st.
+
+  translate.py --mode external|strip [--workarounds] -o OUT.st st_src/*.st
+
+--mode external  every matiec pragma {{ ... }} becomes an STruC++ {external ... } block that
+                 does the same thing on C mirrors of the variables it names (see
+                 mbfb_strucpp.hpp): GetFbVar(X) -> the mirror of X, SetFbVar(X, v) -> the
+                 mirror of X assigned, &data__->X.value(.F) -> the mirror's address,
+                 __CURRENT_TIME -> mbfb_v4::current_time(). Mirrors are copied in before and
+                 back after the pragma's statements. A pragma using any other form is refused
+                 (one line naming file:line and the form, exit 2).
+--mode strip     pragmas removed (the blocks compile but never reach the bus): shows what
+                 STruC++ accepts of the plain ST.
+--workarounds    rewrite the ST constructs STruC++ does not accept today (v4/README.md, "gaps"):
+                 G1 an FB instance initialised in its declaration `x : FB := (In := v);` ->
+                 plain declaration, and `x.In := v;` as the first statement of the body;
+                 G2 a FUNCTION's VAR_INPUT without an initial value -> given its type's
+                 default (IEC: an input not given in a call takes its initial value).
+Every workaround applied is printed on stderr (one line each).
+"""
+import argparse
+import re
+import sys
+
+PRAGMA = re.compile(r"\{\{(.*?)\}\}", re.S)
+ALLOWED = re.compile(r"GetFbVar|SetFbVar|data__")
+
+
+def die(msg):
+    print(f"translate.py: {msg}", file=sys.stderr)
+    sys.exit(2)
+
+
+def strip_comments(s):
+    """Blank ST comments, keeping offsets (so line numbers stay right)."""
+    out, i, depth = list(s), 0, 0
+    while i < len(s):
+        if s.startswith("(*", i):
+            depth += 1
+            out[i] = out[i + 1] = " "
+            i += 2
+        elif depth and s.startswith("*)", i):
+            depth -= 1
+            out[i] = out[i + 1] = " "
+            i += 2
+        else:
+            if depth and s[i] != "\n":
+                out[i] = " "
+            i += 1
+    return "".join(out)
+
+
+def struct_types(text):
+    """ST structure types: name -> [field names] (upper case), in declaration order."""
+    types = {}
+    for m in re.finditer(r"(\w+)\s*:\s*STRUCT\b(.*?)END_STRUCT", text, re.S | re.I):
+        fields = []
+        for fm in re.finditer(r"(\w+)\s*:\s*[^;]+;", m.group(2)):
+            fields.append(fm.group(1).upper())
+        types[m.group(1).upper()] = fields
+    return types
+
+
+def fb_var_types(body):
+    """Variables of one POU: NAME -> declared type text (upper case)."""
+    out = {}
+    for blk in re.finditer(r"\bVAR(?:_INPUT|_OUTPUT|_IN_OUT|_TEMP)?\b(.*?)\bEND_VAR\b", body, re.S | re.I):
+        for d in re.finditer(r"([\w\s,]+?)\s*:\s*([^;:=]+?)\s*(?::=[^;]*)?;", blk.group(1)):
+            for n in d.group(1).split(","):
+                n = n.strip()
+                if n and n.upper() not in ("CONSTANT", "RETAIN"):
+                    out[n.split()[-1].upper()] = d.group(2).strip().upper()
+    return out
+
+
+def split_args(s, start):
+    """s[start] == '(' -> (list of top-level args, index after ')')."""
+    depth, i, args, cur = 0, start, [], []
+    while i < len(s):
+        c = s[i]
+        if c == "(":
+            depth += 1
+            if depth > 1:
+                cur.append(c)
+        elif c == ")":
+            depth -= 1
+            if depth == 0:
+                args.append("".join(cur))
+                return args, i + 1
+            cur.append(c)
+        elif c == "," and depth == 1:
+            args.append("".join(cur))
+            cur = []
+        else:
+            cur.append(c)
+        i += 1
+    raise ValueError("unbalanced parentheses")
+
+
+def translate_pragma(code, where, vartypes, structs):
+    names = []  # variables named, in order of first use
+
+    def use(n):
+        n = n.upper()
+        if n not in vartypes:
+            die(f"{where}: pragma names {n}, not a variable of its block")
+        if n not in names:
+            names.append(n)
+        return f"{n}__c"
+
+    out, i = [], 0
+    while i < len(code):
+        m = re.compile(r"GetFbVar\s*\(|SetFbVar\s*\(|&\s*data__->(\w+)\.value((?:\.\w+)*)").search(code, i)
+        if not m:
+            out.append(code[i:])
+            break
+        out.append(code[i:m.start()])
+        tok = m.group(0)
+        if tok.startswith("&"):
+            out.append("&" + use(m.group(1)) + m.group(2))
+            i = m.end()
+            continue
+        args, j = split_args(code, m.end() - 1)
+        if tok.startswith("GetFbVar"):
+            if len(args) != 1 or not re.fullmatch(r"\s*\w+\s*", args[0]):
+                die(f"{where}: GetFbVar({','.join(args)}) is not GetFbVar(NAME)")
+            out.append(use(args[0].strip()))
+        else:
+            if len(args) != 2 or not re.fullmatch(r"\s*\w+\s*", args[0]):
+                die(f"{where}: SetFbVar({','.join(args)}) is not SetFbVar(NAME, value)")
+            inner = translate_pragma(args[1], where, vartypes, structs)[0]
+            out.append(f"({use(args[0].strip())} = ({inner}))")
+            for n in translate_pragma(args[1], where, vartypes, structs)[1]:
+                if n not in names:
+                    names.append(n)
+        i = j
+    body = "".join(out).replace("__CURRENT_TIME", "::mbfb_v4::current_time()")
+    if "data__" in body or "GetFbVar" in body or "SetFbVar" in body:
+        die(f"{where}: a form other than GetFbVar(X), SetFbVar(X, v), &data__->X.value")
+    return body, names
+
+
+def mirror_code(names, vartypes, structs):
+    """Declarations + copy-in, and copy-out, of the C mirrors of `names`."""
+    decl, back = [], []
+    for n in names:
+        t = vartypes[n]
+        if t in structs:
+            fields = structs[t]
+            decl.append(f"struct {n}__t {{ " + " ".join(
+                f"::mbfb_v4::ctype_t<decltype({n}.{f})> {f};" for f in fields) + " };")
+            decl.append(f"{n}__t {n}__c;")
+            decl += [f"::mbfb_v4::to_c({n}.{f}, {n}__c.{f});" for f in fields]
+            back += [f"::mbfb_v4::from_c({n}__c.{f}, {n}.{f});" for f in fields]
+        else:
+            decl.append(f"::mbfb_v4::ctype_t<decltype({n})> {n}__c;")
+            decl.append(f"::mbfb_v4::to_c({n}, {n}__c);")
+            back.append(f"::mbfb_v4::from_c({n}__c, {n});")
+    return decl, back
+
+
+def pou_spans(text):
+    """(start, end, body) of every FUNCTION_BLOCK / FUNCTION / PROGRAM."""
+    for m in re.finditer(r"\b(FUNCTION_BLOCK|FUNCTION|PROGRAM)\b(.*?)\bEND_\1\b", text, re.S):
+        yield m.start(), m.end(), m.group(0)
+
+
+def to_external(src, clean, fname, structs):
+    out, last = [], 0
+    for start, end, _ in pou_spans(clean):
+        vartypes = fb_var_types(clean[start:end])
+        for m in PRAGMA.finditer(src, start, end):
+            line = src.count("\n", 0, m.start()) + 1
+            code, names = translate_pragma(m.group(1), f"{fname}:{line}", vartypes, structs)
+            decl, back = mirror_code(names, vartypes, structs)
+            nl = "\n" if "\n" in m.group(1) else " "
+            td = "typedef ::mbfb_v4::mstring STRING; " if re.search(r"\bSTRING\b", code) else ""
+            new = ("{external { " + td + " ".join(decl) + nl
+                   + code.strip("\n") + nl + " ".join(back) + " } }")
+            out.append(src[last:m.start()])
+            out.append(new)
+            last = m.end()
+    out.append(src[last:])
+    res = "".join(out)
+    if "{{" in strip_comments(res):
+        die(f"{fname}: a pragma outside a POU")
+    return res
+
+
+TYPE_DEFAULT = {"BOOL": "FALSE", "STRING": "''", "TIME": "T#0s", "REAL": "0.0", "LREAL": "0.0"}
+
+
+def workarounds(src, fname, enums, notes):
+    clean = strip_comments(src)
+    # G1: FB instance initialisers in declarations
+    inits = {}  # POU start -> [(instance, [(param, value)])]
+    pat = re.compile(r"(\w+)\s*:\s*(\w+)\s*:=\s*\(((?:\s*\w+\s*:=\s*[^,();]+,?)+)\)\s*;")
+    edits = []
+    for m in pat.finditer(clean):
+        if m.group(2).upper() in TYPE_DEFAULT or m.group(2).upper().startswith("MB_LINE"):
+            continue  # a structure initialiser, accepted by STruC++
+        params = [tuple(x.split(":=", 1)) for x in m.group(3).split(",") if x.strip()]
+        if not params:
+            continue
+        edits.append((m.start(), m.end(), f"{m.group(1)} : {m.group(2)};", m.group(1), params))
+        notes.append(f"G1 {fname}:{clean.count(chr(10), 0, m.start()) + 1}: "
+                     f"{m.group(1)} : {m.group(2)} := (...) -> assignments at the top of the body")
+    for s, e, rep, inst, params in reversed(edits):
+        # the body starts after the POU's last END_VAR
+        pou_end = re.compile(r"\bEND_FUNCTION_BLOCK\b|\bEND_PROGRAM\b").search(clean, e)
+        last_end_var = [x.end() for x in re.finditer(r"\bEND_VAR\b", clean[:pou_end.start()])][-1]
+        assigns = "\n" + "".join(f"  {inst}.{p.strip()} := {v.strip()};\n" for p, v in params)
+        src = src[:last_end_var] + assigns + src[last_end_var:]
+        src = src[:s] + rep + src[e:]
+        clean = strip_comments(src)
+    # G2: FUNCTION inputs without initial values
+    def fix_fn(m):
+        head, blk = m.group(1), m.group(2)
+
+        def fix_decl(d):
+            name, typ = d.group(1), d.group(2).strip()
+            u = typ.upper()
+            if u in TYPE_DEFAULT:
+                val = TYPE_DEFAULT[u]
+            elif u in enums:
+                val = enums[u]
+            elif re.fullmatch(r"S?U?[SDL]?INT|INT|U?INT|BYTE|[DL]?WORD", u):
+                val = "0"
+            else:
+                return d.group(0)
+            notes.append(f"G2 {fname}: FUNCTION {head.split()[1]} input {name} : {typ} -> := {val}")
+            return f"{name} : {typ} := {val};"
+        return head + re.sub(r"(\w+)\s*:\s*(\w+)\s*;", fix_decl, blk)
+    src = re.sub(r"(FUNCTION\s+\w+\s*:\s*\w+\s*VAR_INPUT)(.*?END_VAR)", fix_fn, src, flags=re.S)
+    return src
+
+
+def main():
+    ap = argparse.ArgumentParser(description="st_src for STruC++")
+    ap.add_argument("--mode", choices=("external", "strip"), required=True)
+    ap.add_argument("--workarounds", action="store_true")
+    ap.add_argument("-o", "--output", required=True)
+    ap.add_argument("sources", nargs="+")
+    a = ap.parse_args()
+    texts = []
+    for f in a.sources:
+        try:
+            texts.append((f, open(f, encoding="utf-8").read()))
+        except OSError as e:
+            die(f"cannot read {f}: {e.strerror}")
+    alltext = strip_comments("\n".join(t for _, t in texts))
+    structs = struct_types(alltext)
+    enums = {m.group(1).upper(): m.group(2).split(",")[0].strip()
+             for m in re.finditer(r"(\w+)\s*:\s*\(([\w\s,]+)\)\s*;", alltext)}
+    notes, out = [], []
+    for f, src in texts:
+        name = f.rsplit("/", 1)[-1]
+        if a.workarounds:
+            src = workarounds(src, name, enums, notes)
+        if a.mode == "strip":
+            src = PRAGMA.sub("", src)
+        else:
+            src = to_external(src, strip_comments(src), name, structs)
+        out.append(f"(* ---- {name} ---- *)\n{src}\n")
+    with open(a.output, "w", encoding="utf-8") as fh:
+        fh.write("".join(out))
+    for n in notes:
+        print(f"translate.py: workaround {n}", file=sys.stderr)
+
+
+if __name__ == "__main__":
+    main()
