@@ -515,7 +515,8 @@ class Soak:
             self.sim.start()
         except Exception as err:  # pylint: disable=broad-except
             shutil.rmtree(tmp, ignore_errors=True)
-            die(f"simulator did not start: {str(err).splitlines()[0]}")
+            lines = [ln for ln in str(err).splitlines() if ln.strip()] or ["?"]
+            die(f"simulator did not start: {lines[-1].strip()}")   # its last word
         try:
             self.hold_pty()
             return self._run(link)
