@@ -68,7 +68,7 @@ END_PROGRAM
 CONFIGURATION config
   RESOURCE res ON PLC
     TASK t (INTERVAL := T#20ms, PRIORITY := 0);
-    PROGRAM inst : main WITH t;
+    PROGRAM inst WITH t : main;
   END_RESOURCE
 END_CONFIGURATION
 """
