@@ -2,6 +2,7 @@
  * mbfb_test_peer.c - assertion helpers and the scripted pty peer (see mbfb_test.h).
  */
 #define _GNU_SOURCE
+#include <dirent.h>
 #include <errno.h>
 #include <fcntl.h>
 #include <poll.h>
@@ -91,17 +92,38 @@ void t_sleep_ms(int ms)
     t_sleep_us((long)ms * 1000);
 }
 
+static char tmp_dir[64];
+
+/* At exit: remove what the tests put in the temporary directory (pty links), then it. */
+static void remove_tmpdir(void)
+{
+    DIR *d = opendir(tmp_dir);
+    struct dirent *e;
+    char path[sizeof tmp_dir + 260];
+
+    if (d != NULL) {
+        while ((e = readdir(d)) != NULL) {
+            if (strcmp(e->d_name, ".") == 0 || strcmp(e->d_name, "..") == 0)
+                continue;
+            snprintf(path, sizeof path, "%s/%s", tmp_dir, e->d_name);
+            unlink(path);
+        }
+        closedir(d);
+    }
+    rmdir(tmp_dir);
+}
+
 const char *t_tmpdir(void)
 {
-    static char dir[64];
-    if (!dir[0]) {
-        snprintf(dir, sizeof dir, "/tmp/mbfb_test_XXXXXX");
-        if (mkdtemp(dir) == NULL) {
+    if (!tmp_dir[0]) {
+        snprintf(tmp_dir, sizeof tmp_dir, "/tmp/mbfb_test_XXXXXX");
+        if (mkdtemp(tmp_dir) == NULL) {
             perror("mkdtemp");
             exit(2);
         }
+        atexit(remove_tmpdir);
     }
-    return dir;
+    return tmp_dir;
 }
 
 /* ---- CRC / LRC (independent of c_shims) ---------------------------------------- */
