@@ -25,6 +25,12 @@ if [ ! -f "$build/CMakeCache.txt" ]; then
   gen=(); command -v ninja >/dev/null 2>&1 && gen=(-G Ninja)
   cmake -S . -B "$build" "${gen[@]}" >/dev/null
 fi
+has_target() { grep -qs 'mbfb_fuzz' "$build/build.ninja" "$build/Makefile"; }
+has_target || cmake "$build" >/dev/null    # configured before clang was installed?
+if ! has_target; then
+  echo "fuzz: error: no target mbfb_fuzz in $build (CMakeLists.txt needs add_subdirectory(fuzz))" >&2
+  exit 2
+fi
 cmake --build "$build" --target mbfb_fuzz -j2
 
 work=$(mktemp -d "${TMPDIR:-/tmp}/mbfb-fuzz-XXXXXX")
