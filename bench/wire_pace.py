@@ -444,6 +444,7 @@ def main() -> int:
 
 
 def med(values):
+    values = [v for v in values if v == v]          # a window without requests has no gap (nan)
     return statistics.median(values) if values else float("nan")
 
 
@@ -479,6 +480,11 @@ def report(res, V, intervals, args, buses, per_bus) -> None:
                   for k, fs in res.items() if len(k) == 3 and any(f.get("failed") for f in fs)]
         print("\nFailed transactions (whole run of each C master and mbpoll, per run): "
               + ("; ".join(failed) if failed else "none") + ".")
+        empty = [f"{k[0]} {k[2]}{' (' + k[1] + ')' if k[1] and len(names) > 1 else ''}"
+                 for k, fs in res.items() if len(k) == 3 and any(f["tx"] == 0 for f in fs)]
+        if empty:
+            print("Runs without any request in the window (counted as 0 tx/s in the medians): "
+                  + "; ".join(empty) + ".")
         turns = [f["turn_ms"] for k in res if len(k) == 3 for f in res[k]]
         print(f"\nDevice turnaround measured on the wire (request end to reply start): median "
               f"{med(turns):.2f} ms. C masters read FC03 " + ", ".join(
