@@ -26,8 +26,27 @@ namespace mbfb_v4 {
 /* matiec's STRING as a pragma sees it: a length and the characters (no terminator). */
 struct mstring {
     int len;
-    char body[256];
+    uint8_t body[256];
 };
+
+/* matiec's C names of the elementary types, for casts written in a pragma ((DINT)x). */
+namespace matiec_types {
+typedef uint8_t BOOL;
+typedef int8_t SINT;
+typedef int16_t INT;
+typedef int32_t DINT;
+typedef int64_t LINT;
+typedef uint8_t USINT;
+typedef uint16_t UINT;
+typedef uint32_t UDINT;
+typedef uint64_t ULINT;
+typedef uint8_t BYTE;
+typedef uint16_t WORD;
+typedef uint32_t DWORD;
+typedef uint64_t LWORD;
+typedef float REAL;
+typedef double LREAL;
+}  // namespace matiec_types
 
 template <class T, class = void> struct ctype;               /* the C mirror of an IEC variable */
 template <class T> struct ctype<strucpp::IECVar<T>, typename std::enable_if<std::is_arithmetic<T>::value>::type> {
@@ -61,7 +80,7 @@ template <size_t N>
 inline strucpp::IECString<N> str_from_c(const mstring &c) {
     char tmp[sizeof c.body + 1];
     int n = c.len < 0 ? 0 : (c.len > (int)N ? (int)N : c.len);
-    std::memcpy(tmp, c.body, (size_t)n);
+    std::memcpy(tmp, c.body, (size_t)n);  /* NOLINT: uint8_t -> char */
     tmp[n] = '\0';
     return strucpp::IECString<N>(tmp);
 }

@@ -7,16 +7,21 @@
                  does the same thing on C mirrors of the variables it names (see
                  mbfb_strucpp.hpp): GetFbVar(X) -> the mirror of X, SetFbVar(X, v) -> the
                  mirror of X assigned, &data__->X.value(.F) -> the mirror's address,
+                 data__->X.value(.F) -> the mirror (in a FUNCTION: X itself -> the mirror),
                  __CURRENT_TIME -> mbfb_v4::current_time(). Mirrors are copied in before and
                  back after the pragma's statements. A pragma using any other form is refused
                  (one line naming file:line and the form, exit 2).
 --mode strip     pragmas removed (the blocks compile but never reach the bus): shows what
                  STruC++ accepts of the plain ST.
 --workarounds    rewrite the ST constructs STruC++ does not accept today (v4/README.md, "gaps"):
-                 G1 an FB instance initialised in its declaration `x : FB := (In := v);` ->
-                 plain declaration, and `x.In := v;` as the first statement of the body;
+                 G1 a named initialiser in a declaration `x : T := (A := v);` (FB instance
+                 or structure) -> plain declaration, `x.A := v;` once, in the first scan;
                  G2 a FUNCTION's VAR_INPUT without an initial value -> given its type's
-                 default (IEC: an input not given in a call takes its initial value).
+                 default (IEC: an input not given in a call takes its initial value);
+                 G4 a '(*' inside a comment (matiec ends a comment at the first '*)', STruC++
+                 nests them) -> '( *';
+                 G5 TIME_TO_LREAL(t) * 1000.0 (ms under matiec, whose TIME_TO_LREAL gives
+                 seconds; STruC++ gives ms) -> TIME_TO_LREAL(t) / TIME_TO_LREAL(T#1ms).
 Every workaround applied is printed on stderr (one line each).
 """
 import argparse
@@ -33,21 +38,57 @@ def die(msg):
 
 
 def strip_comments(s):
-    """Blank ST comments, keeping offsets (so line numbers stay right)."""
-    out, i, depth = list(s), 0, 0
-    while i < len(s):
-        if s.startswith("(*", i):
-            depth += 1
-            out[i] = out[i + 1] = " "
-            i += 2
-        elif depth and s.startswith("*)", i):
-            depth -= 1
-            out[i] = out[i + 1] = " "
-            i += 2
+    """Blank ST comments, keeping offsets (so line numbers stay right). matiec's rule: a
+    comment ends at the first *) (no nesting), and {{ }} pragmas and strings hold none."""
+    out, i, n = list(s), 0, len(s)
+    while i < n:
+        if s.startswith("{{", i):
+            j = s.find("}}", i)
+            i = n if j < 0 else j + 2
+        elif s[i] == "'":
+            j = i + 1
+            while j < n and s[j] != "'":
+                j += 2 if s[j] == "$" else 1
+            i = j + 1
+        elif s.startswith("(*", i):
+            j = s.find("*)", i + 2)
+            j = n if j < 0 else j + 2
+            for k in range(i, j):
+                if out[k] != "\n":
+                    out[k] = " "
+            i = j
         else:
-            if depth and s[i] != "\n":
-                out[i] = " "
             i += 1
+    return "".join(out)
+
+
+def unnest_comments(src, fname, notes):
+    """G4: STruC++ nests comments (IEC 61131-3 ed. 3), matiec does not: a '(*' inside a
+    comment would open a second level and swallow the code after the first '*)'."""
+    out, i, n, count = [], 0, len(src), 0
+    while i < n:
+        if src.startswith("{{", i):
+            j = src.find("}}", i)
+            j = n if j < 0 else j + 2
+        elif src[i] == "'":
+            j = i + 1
+            while j < n and src[j] != "'":
+                j += 2 if src[j] == "$" else 1
+            j += 1
+        elif src.startswith("(*", i):
+            j = src.find("*)", i + 2)
+            j = n if j < 0 else j + 2
+            inner = src[i + 2:j - 2]
+            count += inner.count("(*")
+            out.append("(*" + inner.replace("(*", "( *") + src[j - 2:j])
+            i = j
+            continue
+        else:
+            j = i + 1
+        out.append(src[i:j])
+        i = j
+    if count:
+        notes.append(f"G4 {fname}: {count} '(*' inside a comment (matiec does not nest) -> '( *'")
     return "".join(out)
 
 
@@ -98,7 +139,7 @@ def split_args(s, start):
     raise ValueError("unbalanced parentheses")
 
 
-def translate_pragma(code, where, vartypes, structs):
+def translate_pragma(code, where, vartypes, structs, function=False):
     names = []  # variables named, in order of first use
 
     def use(n):
@@ -111,14 +152,20 @@ def translate_pragma(code, where, vartypes, structs):
 
     out, i = [], 0
     while i < len(code):
-        m = re.compile(r"GetFbVar\s*\(|SetFbVar\s*\(|&\s*data__->(\w+)\.value((?:\.\w+)*)").search(code, i)
+        m = re.compile(r"GetFbVar\s*\(|SetFbVar\s*\(|(&\s*)?data__->(\w+)\.value((?:\.\w+)*)"
+                       + (r"|\b(" + "|".join(sorted(vartypes, key=len, reverse=True)) + r")\b"
+                          if function and vartypes else "")).search(code, i)
         if not m:
             out.append(code[i:])
             break
         out.append(code[i:m.start()])
         tok = m.group(0)
-        if tok.startswith("&"):
-            out.append("&" + use(m.group(1)) + m.group(2))
+        if "data__" in tok:
+            out.append(("&" if m.group(1) else "") + use(m.group(2)) + m.group(3))
+            i = m.end()
+            continue
+        if function and m.lastindex == 4 and m.group(4):
+            out.append(use(m.group(4)))  # a FUNCTION's pragma names its variables directly
             i = m.end()
             continue
         args, j = split_args(code, m.end() - 1)
@@ -129,9 +176,9 @@ def translate_pragma(code, where, vartypes, structs):
         else:
             if len(args) != 2 or not re.fullmatch(r"\s*\w+\s*", args[0]):
                 die(f"{where}: SetFbVar({','.join(args)}) is not SetFbVar(NAME, value)")
-            inner = translate_pragma(args[1], where, vartypes, structs)[0]
+            inner = translate_pragma(args[1], where, vartypes, structs, function)[0]
             out.append(f"({use(args[0].strip())} = ({inner}))")
-            for n in translate_pragma(args[1], where, vartypes, structs)[1]:
+            for n in translate_pragma(args[1], where, vartypes, structs, function)[1]:
                 if n not in names:
                     names.append(n)
         i = j
@@ -168,14 +215,17 @@ def pou_spans(text):
 
 def to_external(src, clean, fname, structs):
     out, last = [], 0
-    for start, end, _ in pou_spans(clean):
+    for start, end, pou in pou_spans(clean):
         vartypes = fb_var_types(clean[start:end])
+        function = pou.startswith("FUNCTION") and not pou.startswith("FUNCTION_BLOCK")
         for m in PRAGMA.finditer(src, start, end):
             line = src.count("\n", 0, m.start()) + 1
-            code, names = translate_pragma(m.group(1), f"{fname}:{line}", vartypes, structs)
+            code, names = translate_pragma(m.group(1), f"{fname}:{line}", vartypes, structs, function)
             decl, back = mirror_code(names, vartypes, structs)
             nl = "\n" if "\n" in m.group(1) else " "
             td = "typedef ::mbfb_v4::mstring STRING; " if re.search(r"\bSTRING\b", code) else ""
+            if re.search(r"\((?:BOOL|S?U?[SDL]?INT|U?INT|BYTE|[DL]?WORD|L?REAL)\)", code):
+                td += "using namespace ::mbfb_v4::matiec_types; "
             new = ("{external { " + td + " ".join(decl) + nl
                    + code.strip("\n") + nl + " ".join(back) + " } }")
             out.append(src[last:m.start()])
@@ -193,27 +243,39 @@ TYPE_DEFAULT = {"BOOL": "FALSE", "STRING": "''", "TIME": "T#0s", "REAL": "0.0", 
 
 def workarounds(src, fname, enums, notes):
     clean = strip_comments(src)
-    # G1: FB instance initialisers in declarations
-    inits = {}  # POU start -> [(instance, [(param, value)])]
+    # G1: named initialisers in declarations (FB instance or structure): `x : T := (A := v);`
     pat = re.compile(r"(\w+)\s*:\s*(\w+)\s*:=\s*\(((?:\s*\w+\s*:=\s*[^,();]+,?)+)\)\s*;")
     edits = []
     for m in pat.finditer(clean):
-        if m.group(2).upper() in TYPE_DEFAULT or m.group(2).upper().startswith("MB_LINE"):
-            continue  # a structure initialiser, accepted by STruC++
         params = [tuple(x.split(":=", 1)) for x in m.group(3).split(",") if x.strip()]
-        if not params:
-            continue
         edits.append((m.start(), m.end(), f"{m.group(1)} : {m.group(2)};", m.group(1), params))
         notes.append(f"G1 {fname}:{clean.count(chr(10), 0, m.start()) + 1}: "
-                     f"{m.group(1)} : {m.group(2)} := (...) -> assignments at the top of the body")
-    for s, e, rep, inst, params in reversed(edits):
-        # the body starts after the POU's last END_VAR
-        pou_end = re.compile(r"\bEND_FUNCTION_BLOCK\b|\bEND_PROGRAM\b").search(clean, e)
-        last_end_var = [x.end() for x in re.finditer(r"\bEND_VAR\b", clean[:pou_end.start()])][-1]
-        assigns = "\n" + "".join(f"  {inst}.{p.strip()} := {v.strip()};\n" for p, v in params)
-        src = src[:last_end_var] + assigns + src[last_end_var:]
-        src = src[:s] + rep + src[e:]
-        clean = strip_comments(src)
+                     f"{m.group(1)} : {m.group(2)} := (...) -> assigned once, in the first scan")
+    # group by POU: one flag and one block of first-scan assignments per POU
+    by_pou = {}
+    for e in edits:
+        pou_end = re.compile(r"\bEND_FUNCTION_BLOCK\b|\bEND_PROGRAM\b").search(clean, e[1])
+        if not pou_end:
+            die(f"{fname}: a named initialiser outside a FUNCTION_BLOCK or PROGRAM")
+        by_pou.setdefault(pou_end.start(), []).append(e)
+    for pe in sorted(by_pou, reverse=True):
+        es = by_pou[pe]
+        last_end_var = [x.end() for x in re.finditer(r"\bEND_VAR\b", clean[:pe])][-1]
+        assigns = "".join(f"    {inst}.{p.strip()} := {v.strip()};\n"
+                          for _, _, _, inst, params in es for p, v in params)
+        block = ("\n  VAR mbfb_v4_init : BOOL; END_VAR\n"
+                 "  IF NOT mbfb_v4_init THEN\n    mbfb_v4_init := TRUE;\n" + assigns + "  END_IF;\n")
+        src = src[:last_end_var] + block + src[last_end_var:]
+        for s_, e_, rep, _, _ in sorted(es, reverse=True):
+            src = src[:s_] + rep + src[e_:]
+    clean = strip_comments(src)
+    # G5: TIME_TO_LREAL gives seconds in matiec, milliseconds in STruC++ (CODESYS): a count
+    # of milliseconds written TIME_TO_LREAL(t) * 1000.0 becomes a ratio both agree on
+    def g5(m):
+        notes.append(f"G5 {fname}:{src.count(chr(10), 0, m.start()) + 1}: TIME_TO_LREAL({m.group(1)}) * 1000.0"
+                     f" -> TIME_TO_LREAL({m.group(1)}) / TIME_TO_LREAL(T#1ms)")
+        return f"(TIME_TO_LREAL({m.group(1)}) / TIME_TO_LREAL(T#1ms))"
+    src = re.sub(r"TIME_TO_LREAL\((\w+)\)\s*\*\s*1000\.0", g5, src)
     # G2: FUNCTION inputs without initial values
     def fix_fn(m):
         head, blk = m.group(1), m.group(2)
@@ -257,6 +319,7 @@ def main():
     for f, src in texts:
         name = f.rsplit("/", 1)[-1]
         if a.workarounds:
+            src = unnest_comments(src, name, notes)
             src = workarounds(src, name, enums, notes)
         if a.mode == "strip":
             src = PRAGMA.sub("", src)
