@@ -50,6 +50,18 @@ def cmd_build(build_dir):
         skip(os.environ["MBFB_STRUCPP_REASON"])
     rc, out = run(["cmake", "--build", build_dir, "--target", "mbfb_v4", "-j2"])
     print(out[-6000:])
+    logs = ""
+    for name in ("strucpp-build.log", "libmodbus-fetch.log"):
+        try:
+            logs += open(os.path.join(build_dir, "v4", name), errors="replace").read()
+        except OSError:
+            pass
+    offline = ("Could not resolve host", "unable to access", "ENOTFOUND", "EAI_AGAIN",
+               "Network is unreachable")
+    if rc and any(o in logs for o in offline):
+        skip("STruC++ or libmodbus could not be fetched (offline?): set STRUCPP_SOURCE_DIR / "
+             "LIBMODBUS_SOURCE_DIR to local git trees, or let the build reach github.com and "
+             "the npm registry (v4/README.md)")
     if rc:
         print("FAIL: target mbfb_v4 did not build")
         sys.exit(1)
@@ -177,8 +189,42 @@ def cmd_fb(build_dir, target, exe, st):
     sys.exit(subprocess.call([sys.executable, runner, "--exe", exe, "--st", st]))
 
 
+def cmd_translate(translate):
+    """translate.py on small inputs: the {external} form of each pragma form, and a pragma in
+    another form refused in one line (exit 2). No Node needed."""
+    with tempfile.TemporaryDirectory(prefix="mbfb-tr-") as tmp:
+        good = os.path.join(tmp, "good.st")
+        open(good, "w").write(
+            "FUNCTION_BLOCK B\n  VAR_INPUT P : STRING; END_VAR\n  VAR R : DINT; W : ARRAY[0..1] OF WORD; END_VAR\n"
+            "  {{ SetFbVar(R, f((const char *)GetFbVar(P).body, GetFbVar(R), (uint16_t *)&data__->W.value)); }}\n"
+            "END_FUNCTION_BLOCK\n")
+        out_st = os.path.join(tmp, "out.st")
+        rc, out = run([sys.executable, translate, "--mode", "external", "-o", out_st, good])
+        text = open(out_st).read() if rc == 0 else ""
+        want = ["{external {", "::mbfb_v4::to_c(P, P__c);", "(R__c = ( f((const char *)P__c.body, R__c, "
+                "(uint16_t *)&W__c)))", "::mbfb_v4::from_c(R__c, R);", "::mbfb_v4::from_c(W__c, W);"]
+        missing = [w for w in want if w not in text]
+        if rc or missing or "{{" in text:
+            print(out, text)
+            print(f"FAIL: translation of the pragma forms: missing {missing}")
+            sys.exit(1)
+        bad = os.path.join(tmp, "bad.st")
+        open(bad, "w").write("FUNCTION_BLOCK B\n  VAR R : DINT; END_VAR\n  {{ R = data__->R; }}\n"
+                             "END_FUNCTION_BLOCK\n")
+        rc, out = run([sys.executable, translate, "--mode", "external", "-o", out_st, bad])
+        if rc != 2 or len(out.strip().splitlines()) != 1 or "bad.st:3" not in out:
+            print(out)
+            print("FAIL: a pragma in another form must be refused in one line naming file:line, exit 2")
+            sys.exit(1)
+        print(f"refused as expected: {out.strip()}")
+    print("PASS: pragma forms translated; other forms refused")
+
+
 def main():
     a = sys.argv[1:]
+    if a and a[0] == "translate" and len(a) == 2:
+        cmd_translate(a[1])
+        return
     if a and a[0] == "fb" and len(a) == 5:
         cmd_fb(*a[1:])
     if not a or a[0] not in ("build", "layout", "gap", "skip"):
