@@ -396,6 +396,32 @@ static void port_lost(mbfb_bus_t *bus, mbfb_dev_t *dev)
     mbfb_slot_fail_queued(bus, MBFB_E_PORTLOST);
 }
 
+/* The port could not be opened: every running plan of the bus ends its refresh now
+ * with MBFB_E_NOPORT (one failed snapshot each, in this one pass), and none is due
+ * again before bus->reopen_us, so the bus tries open() once per probe interval
+ * whatever the number of plans. */
+static void plans_no_port(mbfb_bus_t *bus, int64_t now)
+{
+    int n = __atomic_load_n(&bus->n_plans, __ATOMIC_ACQUIRE);
+    uint16_t words[MBFB_PLAN_MAX_WORDS];
+
+    memset(words, 0, sizeof words);
+    for (int i = 0; i < n; i++) {
+        mbfb_plan_t *p = __atomic_load_n(&bus->plans[i], __ATOMIC_ACQUIRE);
+        mbfb_plan_item_t items[MBFB_PLAN_MAX_ITEMS];
+        int ni, per, slow, nwords = 0;
+        uint32_t cs;
+        if (p == NULL || !mbfb_plan_read_cfg(p, items, &ni, &per, &slow, &cs))
+            continue; /* not running */
+        for (int k = 0; k < ni; k++)
+            nwords += items[k].count;
+        p->last_start_us = now;
+        set_error(mbfb_devs[p->dev], MBFB_E_NOPORT);
+        mbfb_plan_publish(p, MBFB_E_NOPORT, __atomic_load_n(&p->inval_gen, __ATOMIC_ACQUIRE),
+                          0u, words, nwords);
+    }
+}
+
 /* Run one request of a device: back-off, port, attempts. Returns its result. */
 static int device_request(mbfb_bus_t *bus, op_t *op)
 {
@@ -408,8 +434,10 @@ static int device_request(mbfb_bus_t *bus, op_t *op)
     }
     if (bus->fd < 0 && bus->be->open(bus) < 0) {
         /* plans try again only after a probe interval: no spinning on open() */
-        bus->reopen_us = mbfb_now_us() + (int64_t)MBFB_PROBE_FIRST_MS * 1000;
+        int64_t now = mbfb_now_us();
+        bus->reopen_us = now + (int64_t)MBFB_PROBE_FIRST_MS * 1000;
         set_error(dev, MBFB_E_NOPORT);
+        plans_no_port(bus, now); /* the caller's plan included: it publishes nothing */
         return MBFB_E_NOPORT;
     }
     if (!bus->be->needs_resync)
@@ -476,7 +504,8 @@ static int run_posted(mbfb_bus_t *bus)
 
 /* When a plan is due (monotonic us); INT64_MAX if it is not running. New settings:
  * now. A device in back-off is due at its next probe only; a port that could not be
- * opened, once the probe interval has passed. */
+ * opened, once the probe interval has passed (then the first plan due tries to open
+ * it, and a failure fails all of them at once: plans_no_port). */
 static int64_t plan_due(mbfb_bus_t *bus, mbfb_plan_t *p)
 {
     mbfb_dev_t *dev = mbfb_devs[p->dev];
@@ -528,6 +557,8 @@ static void run_refresh(mbfb_bus_t *bus, mbfb_plan_t *p)
         }
         if (run_posted(bus))
             return;
+        if (bus->fd < 0 && bus->reopen_us > start)
+            return; /* a posted request could not open the port: plans_no_port ran */
         memset(&op, 0, sizeof op);
         op.devidx = p->dev;
         op.fc = items[i].fc;
@@ -535,6 +566,8 @@ static void run_refresh(mbfb_bus_t *bus, mbfb_plan_t *p)
         op.count = items[i].count;
         op.out = words + nwords;
         rc = device_request(bus, &op);
+        if (rc == MBFB_E_NOPORT)
+            return; /* published with every plan of the bus (plans_no_port) */
         if (rc != MBFB_OK) {
             result = rc;
             break;
