@@ -648,7 +648,8 @@ class Soak:
                     "p99_s": round(xs[min(len(xs) - 1, int(len(xs) * 0.99))], 3),
                     "max_s": round(xs[-1], 3)}
         out = {
-            "shims": {"post_write": self.shims.has_post_write, "lib": self.a.lib},
+            "shims": {"post_write": self.shims.has_post_write,
+                      "lib": os.path.basename(self.a.lib)},
             "line": f"{self.a.baud} {self.a.format}{' paced' if self.a.pace else ''}",
             "seed": self.a.seed, "fault_rate": self.a.fault_rate,
             "elapsed_s": round(self.elapsed, 1),
