@@ -210,8 +210,8 @@ static void broadcast(void)
     CHECK_EQ(mbfb_take(h, NULL, 0), 0);
     CHECK_EQ(t_run(dev, 3, 0, 1, NULL, v, 1), 1);
     CHECK_EQ(t_run(bc, 16, 0, 2, v, NULL, 0), 0); /* done when written: the peer may */
-    for (int i = 0; i < 100 && peer_count(&P) < 3; i++) /* not have read it yet */
-        t_sleep_ms(10);
+    for (int i = 0; i < 3000 && peer_count(&P) < 3; i++) /* not have read it yet (30 s */
+        t_sleep_ms(10);                                   /* at most: a loaded machine) */
     t_sleep_ms(50);
     CHECK_EQ(peer_count(&P), 3); /* sent once each: nothing awaited, nothing retried */
     {
@@ -290,7 +290,8 @@ static void silent(peer_t *p, int n, const uint8_t *f, int len, peer_reply_t *r)
 
 static void queue_cancel_handles(void)
 {
-    int h[80], bus, dev, n = 0, rc;
+    int h[80], bus, dev, n = 0, rc, a = 0;
+    int64_t t_found, t_cancelled;
     uint16_t v[2];
 
     t_scenario = "queue full, cancel, handles";
@@ -300,13 +301,26 @@ static void queue_cancel_handles(void)
         h[n++] = rc;
     CHECK_EQ(rc, -MBFB_E_QUEUEFULL);
     CHECK_EQ(n, 64);
-    t_sleep_ms(50);
-    CHECK_EQ(mbfb_poll(h[0]), MBFB_REQ_ACTIVE);
-    CHECK_EQ(mbfb_take(h[0], v, 1), -MBFB_E_BADHANDLE); /* not finished */
-    CHECK_EQ(mbfb_poll(h[0]), MBFB_REQ_ACTIVE);          /* ...and still alive */
-    CHECK_EQ(mbfb_poll(h[1]), MBFB_REQ_QUEUED);
+    /* the request the worker has on the wire (h[0] unless this machine held the test
+     * back past a 400 ms timeout): not finished, so take refuses it and it stays alive */
+    for (int64_t end = t_now_us() + 30000000; t_now_us() < end; t_sleep_ms(1)) {
+        for (a = 0; a < n && mbfb_poll(h[a]) != MBFB_REQ_ACTIVE; a++) {
+        }
+        if (a < n)
+            break;
+    }
+    t_found = t_now_us();
+    CHECK(a < n - 1);
+    if (a >= n - 1)
+        a = 0;
+    CHECK_EQ(mbfb_take(h[a], v, 1), -MBFB_E_BADHANDLE); /* not finished */
+    rc = mbfb_poll(h[a]);                                /* ...and still alive */
+    CHECK(rc == MBFB_REQ_ACTIVE || rc == MBFB_REQ_FAILED);
+    rc = mbfb_poll(h[n - 1]);
+    CHECK(rc == MBFB_REQ_QUEUED);
     for (int i = 0; i < n; i++)
         CHECK_EQ(mbfb_cancel(h[i]), 0);
+    t_cancelled = t_now_us();
     for (int i = 0; i < n; i++) {
         CHECK_EQ(mbfb_poll(h[i]), -MBFB_E_BADHANDLE);
         CHECK_EQ(mbfb_cancel(h[i]), -MBFB_E_BADHANDLE);
@@ -317,7 +331,13 @@ static void queue_cancel_handles(void)
     CHECK_EQ(mbfb_take(rc, v, 1), -MBFB_E_TIMEOUT);
     CHECK_EQ(mbfb_take(rc, v, 1), -MBFB_E_BADHANDLE); /* taken: stale */
     CHECK_EQ(mbfb_poll(rc), -MBFB_E_BADHANDLE);
-    CHECK_EQ(peer_count(&P), 2); /* the active one and the last: cancelled never sent */
+    /* every request started put exactly one frame on the wire (no retries), and the
+     * cancelled ones that had not started never did: the slots were free at once (the
+     * post above) and the last request came after the one active at cancel time only
+     * (on an idle machine: 2 frames, h[0] and the last) */
+    CHECK_EQ(peer_count(&P), (int)t_diag(dev).requests);
+    if (t_cancelled - t_found < 400000) /* not held back longer than one timeout: at */
+        CHECK(peer_count(&P) <= a + 3);  /* most one more request started meanwhile  */
     CHECK_EQ(mbfb_poll(0), -MBFB_E_BADHANDLE);
     CHECK_EQ(mbfb_poll(-7), -MBFB_E_BADHANDLE);
     CHECK_EQ(mbfb_poll(0x7FFFFFFF), -MBFB_E_BADHANDLE);
@@ -440,7 +460,8 @@ static void port_lost(void)
     __atomic_store_n(&mute, 1, __ATOMIC_RELEASE); /* the next request stays on the wire... */
     for (int i = 0; i < 3; i++)
         h[i] = mbfb_post(dev, 3, 0, 1, NULL);
-    t_sleep_ms(100);
+    for (int i = 0; i < 30000 && mbfb_poll(h[0]) == MBFB_REQ_QUEUED; i++)
+        t_sleep_ms(1); /* until the worker has it (4 x 2 s of attempts follow) */
     CHECK_EQ(mbfb_poll(h[0]), MBFB_REQ_ACTIVE);
     peer_stop(&P); /* ...when the port goes away */
     for (int i = 0; i < 3; i++) { /* in flight and queued: all end, none silently */
@@ -459,8 +480,8 @@ static void port_lost(void)
 /* ---- several devices, one dead: back-off keeps the bus for the others -------------- */
 static void dead_device(void)
 {
-    int bus, d1, d2, d3, good1 = 0, good3 = 0, offline2 = 0, iters = 40;
-    int64_t end;
+    int bus, d1, d2, d3, good1 = 0, good3 = 0, offline2 = 0, iters = 40, extra;
+    int64_t end, t0;
     mbfb_diag_t dg;
     uint16_t v[1];
 
@@ -470,6 +491,7 @@ static void dead_device(void)
     d2 = mbfb_dev_open(bus, 2);
     d3 = mbfb_dev_open(bus, 3);
     peer_set_dead(&P, 2, 1);
+    t0 = t_now_us();
     for (int i = 0; i < iters; i++) {
         int h1 = mbfb_post(d1, 3, 0, 1, NULL), h2 = mbfb_post(d2, 3, 0, 1, NULL),
             h3 = mbfb_post(d3, 3, 0, 1, NULL);
@@ -486,9 +508,12 @@ static void dead_device(void)
      * request and one resync read (FC04: the only other reply shape of a one-register
      * window); then no reply shape is left that its late reply could not match, so it
      * gets no bus time for MBFB_LATE_MAX_MS (new behaviour, README "Late replies") */
-    CHECK(peer_slave_count(&P, 2) <= 3 * 4 + 4);
+    /* (the rounds take milliseconds; if this machine stretched them past
+     * MBFB_LATE_MAX_MS, the shapes expired and a few more probes were due: allowed) */
+    extra = 4 * (int)((t_now_us() - t0) / ((int64_t)MBFB_LATE_MAX_MS * 1000));
+    CHECK(peer_slave_count(&P, 2) <= 3 * 4 + 4 + extra);
     CHECK(peer_slave_count(&P, 2) >= 2);
-    CHECK(offline2 >= iters - 3 - 4);
+    CHECK(offline2 >= iters - 3 - 4 - extra);
     CHECK_EQ(mbfb_dev_diag(d2, &dg), 0);
     CHECK_EQ(dg.offline, 1);
     CHECK_EQ(dg.good, 0);
