@@ -164,7 +164,7 @@ def test_serial_device_mode():
         with simctl.Simulator(["mvd94:1:SV=1000"], transport="serial", serial=path) as sim:
             assert sim.ready_line == f"SERIAL {path}"
             os.write(master, bytes.fromhex(READ))
-            got, end = b"", time.monotonic() + 2
+            got, end = b"", time.monotonic() + 10  # a wait, not a speed check
             os.set_blocking(master, False)
             while len(got) < 7 and time.monotonic() < end:
                 try:
@@ -181,10 +181,17 @@ def test_frame_end_rules(raw_factory):
     with simctl.Simulator(["mvd94:1:SV=1000"]) as sim:
         raw = raw_factory(sim.port)
         req = bytes.fromhex(READ)
-        # a request written in two pieces 1 ms apart is still one request (length-aware)
+        # a request written in two pieces 1 ms apart is still one request (length-aware;
+        # up to 50 ms of silence): as the simulator logged it, unless this process was held
+        # back past those 50 ms between the two writes (then: two pieces, no reply)
         raw.ser.write(req[:3])
         time.sleep(0.001)
-        assert hexu(raw.xfer(req[3:])) == GOOD
+        got = raw.xfer(req[3:])
+        rx = [f for f in sim.log() if f["dir"] == "rx"]
+        if len(rx) == 1:  # as meant
+            assert rx[0]["hex"] == READ and hexu(got) == GOOD
+        else:
+            assert len(rx) == 2 and got == b""
         # ... but 150 ms of silence in the middle splits it: both pieces are garbage
         raw.ser.write(req[:3])
         time.sleep(0.15)
@@ -204,7 +211,7 @@ def test_pace_inside_the_simulator(raw_factory):
         t0 = time.monotonic()
         raw.ser.write(bytes.fromhex(READ))
         got = b""
-        while len(got) < 7 and time.monotonic() - t0 < 2:
+        while len(got) < 7 and time.monotonic() - t0 < 10:  # a wait, not a speed check
             got += raw.ser.read(16)
         elapsed = time.monotonic() - t0
         assert hexu(got) == GOOD
@@ -229,13 +236,20 @@ def test_pace_with_ptyline_counts_the_line():
             for _ in range(5):
                 raw.ser.write(bytes.fromhex(READ))
                 got, t0 = b"", time.monotonic()
-                while len(got) < 7 and time.monotonic() - t0 < 1:
+                while len(got) < 7 and time.monotonic() - t0 < 10:  # a wait, not a speed check
                     got += raw.ser.read(16)
+                assert hexu(got) == GOOD
             time.sleep(0.1)
         finally:
             raw.close()
         stats = sim.ctl("line_stats")["stats"]
-        assert stats["requests"]["short_3_5"] >= 1
+        rq = stats["requests"]
+        # counted against the silences ptyline itself measured: on an idle machine some
+        # were below t3.5 (4 ms); a busy one may have made them all longer
+        if rq["gap_min_us"] < stats["t35_us"]:
+            assert rq["short_3_5"] >= 1 and rq["short_min_us"] == rq["gap_min_us"]
+        else:
+            assert rq["short_3_5"] == 0 and rq["short_min_us"] is None
 
 
 def os_ptyline():
