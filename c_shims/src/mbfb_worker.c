@@ -452,7 +452,12 @@ static int device_request(mbfb_bus_t *bus, op_t *op)
     rc = run_op(bus, op);
     if (rc == -MBFB_E_PORTLOST) {
         port_lost(bus, dev);
-        return MBFB_E_PORTLOST;
+        /* a write that went out may have been applied before the port went: its outcome
+         * is unknown, not failed (a read-back needs the port) */
+        rc = (op->fc == 6 || op->fc == 16) && op->sent > 0 ? MBFB_E_UNCONFIRMED
+                                                            : MBFB_E_PORTLOST;
+        set_error(dev, rc);
+        return rc;
     }
     if (op->sent > 0) {
         update_backoff(dev, op->answered);
