@@ -234,11 +234,15 @@ typedef struct mbfb_plan {
     int n, period_ms, slow_ms;
     mbfb_plan_item_t items[MBFB_PLAN_MAX_ITEMS];
     uint32_t inval_gen;      /* atomic: mbfb_plan_invalidate count                */
+    uint32_t taken;          /* atomic: seq of the snapshot mbfb_plan_take copied last */
     /* worker only */
     uint32_t cfg_seen;       /* cfg_seq of the settings of the last refresh        */
     int64_t last_start_us, next_slow_us;
     uint32_t slow_gen;       /* inval_gen when the slow tier was last read         */
     int slow_done;           /* the slow tier was read since the last plan_set     */
+    uint32_t slow_owed;      /* seq of a snapshot with a slow read the scan is owed
+                                (the first, or one for an invalidation), 0 = none: the
+                                slow tier stays due until a take reaches it          */
     uint32_t seq;            /* refreshes published                               */
     /* snapshots */
     uint32_t pub;            /* atomic: number of the newest published refresh      */

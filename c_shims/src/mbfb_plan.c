@@ -171,6 +171,7 @@ int mbfb_plan_take(int plan, uint32_t *seq, mbfb_snap_t *out)
     }
     out->seq = s;
     *seq = s;
+    __atomic_store_n(&p->taken, s, __ATOMIC_RELEASE); /* the worker's slow_owed */
     return 1;
 }
 

@@ -270,6 +270,7 @@ typedef struct op {
     int budget;               /* failed attempts allowed                               */
     int answered;             /* out: a valid reply (or exception) came from the device */
     int sent;                 /* out: attempts put on the wire                         */
+    int write_sent;           /* out: the write itself went on the wire (maybe applied) */
 } op_t;
 
 /* Count an attempt beyond the first of this request. */
@@ -349,6 +350,7 @@ static int run_op(mbfb_bus_t *bus, op_t *op)
                 return err;
         }
         next_attempt(dev, op);
+        op->write_sent |= write;
         rc = attempt(bus, dev, op->fc, op->addr, op->count, op->vals, op->out);
         if (rc == -MBFB_E_PORTLOST)
             return rc;
@@ -449,13 +451,13 @@ static int device_request(mbfb_bus_t *bus, op_t *op)
     op->budget = offline || !dev->in_step ? 1 : 1 + bus->cfg.retries;
     op->answered = 0;
     op->sent = 0;
+    op->write_sent = 0;
     rc = run_op(bus, op);
     if (rc == -MBFB_E_PORTLOST) {
         port_lost(bus, dev);
         /* a write that went out may have been applied before the port went: its outcome
          * is unknown, not failed (a read-back needs the port) */
-        rc = (op->fc == 6 || op->fc == 16) && op->sent > 0 ? MBFB_E_UNCONFIRMED
-                                                            : MBFB_E_PORTLOST;
+        rc = op->write_sent ? MBFB_E_UNCONFIRMED : MBFB_E_PORTLOST;
         set_error(dev, rc);
         return rc;
     }
@@ -536,7 +538,7 @@ static void run_refresh(mbfb_bus_t *bus, mbfb_plan_t *p)
     mbfb_plan_item_t items[MBFB_PLAN_MAX_ITEMS];
     uint16_t words[MBFB_PLAN_MAX_WORDS];
     mbfb_dev_t *dev = mbfb_devs[p->dev];
-    int n, period, slow_ms, slow, nwords = 0, result = MBFB_OK;
+    int n, period, slow_ms, slow, owed, nwords = 0, result = MBFB_OK;
     uint32_t cfg, gen, mask = 0;
     int64_t start = mbfb_now_us();
 
@@ -549,7 +551,13 @@ static void run_refresh(mbfb_bus_t *bus, mbfb_plan_t *p)
         p->slow_done = 0;
     }
     gen = __atomic_load_n(&p->inval_gen, __ATOMIC_ACQUIRE);
-    slow = !p->slow_done || gen != p->slow_gen || start >= p->next_slow_us;
+    /* The first slow read and one made for an invalidation are owed to the scan: until a
+     * take reaches that snapshot (refreshes may outpace scans), every refresh reads the
+     * slow tier again, so whichever snapshot a take copies holds it. */
+    owed = !p->slow_done || gen != p->slow_gen; /* a new debt */
+    slow = owed || start >= p->next_slow_us ||
+           (p->slow_owed != 0 && /* an old one: no take has reached it yet */
+            (int32_t)(__atomic_load_n(&p->taken, __ATOMIC_ACQUIRE) - p->slow_owed) < 0);
     p->last_start_us = start;
     memset(words, 0, sizeof words);
     for (int i = 0; i < n; i++) {
@@ -598,6 +606,9 @@ static void run_refresh(mbfb_bus_t *bus, mbfb_plan_t *p)
     for (int i = 0; i < n; i++)
         nwords += items[i].count;
     mbfb_plan_publish(p, result, gen, mask, words, nwords);
+    if (result == MBFB_OK && owed)
+        p->slow_owed = p->seq; /* the first snapshot of the debt: every later one holds
+                                  the slow tier too until a take reaches it */
 }
 
 /* The plan due first (ties: round robin after the last one run). Returns it when it
