@@ -157,7 +157,10 @@ def cmd_gap(v4, gap):
         if os.path.exists(test):  # a gap in a value: STruC++'s own --test checks it
             t = os.path.join(tmp, "gap_test.st")
             shutil.copy(test, t)
-            rc, out = run(["node", cli, gap, "--test", t, "-o", tmp])
+            # STruC++'s --test builds in a directory of its own under os.tmpdir() and
+            # leaves it there: TMPDIR puts it inside ours, removed with it
+            rc, out = run(["node", cli, gap, "--test", t, "-o", tmp],
+                          env={**os.environ, "TMPDIR": tmp})
             print(out)
             if rc != 0:
                 print(f"FAIL: {os.path.basename(test)} no longer holds: the gap is closed (or "
