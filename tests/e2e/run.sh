@@ -14,4 +14,5 @@ home=${OPENPLC_HOME:-/opt/OpenPLC_v3}
     skip "OpenPLC v3 not found at $home (set OPENPLC_HOME)"
 [ -f "${MBFB_DIST:-}/MANIFEST" ] || skip "generated library missing (${MBFB_DIST:-MBFB_DIST unset}): needs st_src/ and iec2c"
 export OPENPLC_HOME=$home
-exec "$here/../../tools/openplc/netns.sh" "${MBFB_PYTHON:?}" -m pytest -q -p no:cacheprovider --rootdir "$here" "$@"
+exec "$here/../../tools/openplc/netns.sh" "${MBFB_PYTHON:?}" -m pytest -q -p no:cacheprovider --rootdir "$here" \
+    --basetemp "$PWD/pytest-$(basename "$1" .py)" "$@"
