@@ -504,9 +504,10 @@ def report(res, V, intervals, args, buses, per_bus) -> None:
     if "scale" not in args.skip and buses:
         print(f"\n## Scale: {buses} buses x {per_bus} MT-S9 at 115200 (simulators pace their replies), "
               f"one Counter_MTS9 each in one program, task {args.scale_task_ms} ms; against 1 device\n")
-        print("| variant | devices | scan us median | p99 | max | sd | start jitter us p99 | "
-              "refreshes/s per device min / median / max | devices never refreshed | worker CPU % | scan thread CPU % |")
-        print("|---|---|---|---|---|---|---|---|---|---|---|")
+        print("| variant | devices | scan us median | p99 | max | sd | start jitter us median | p99 | max | "
+              "refreshes/s per device min / median / max | devices never refreshed | worker CPU % | "
+              "scan thread CPU % | scan thread SCHED_FIFO |")
+        print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
         for n in names:
             for key, nd in (("scale1", 1), ("scale", buses * per_bus)):
                 hs = res.get((key, n), [])
@@ -515,10 +516,12 @@ def report(res, V, intervals, args, buses, per_bus) -> None:
                 g = lambda f: med([f(h) for h in hs])  # noqa: E731
                 print(f"| {n} | {nd} | {g(lambda h: h['scan_us']['median']):.1f} | "
                       f"{g(lambda h: h['scan_us']['p99']):.1f} | {g(lambda h: h['scan_us']['max']):.0f} | "
-                      f"{g(lambda h: h['scan_us']['sd']):.1f} | {g(lambda h: h['start_jitter_us']['p99']):.0f} | "
+                      f"{g(lambda h: h['scan_us']['sd']):.1f} | {g(lambda h: h['start_jitter_us']['median']):.0f} | "
+                      f"{g(lambda h: h['start_jitter_us']['p99']):.0f} | {g(lambda h: h['start_jitter_us']['max']):.0f} | "
                       f"{g(lambda h: min(h['rates'])):.2f} / {g(lambda h: statistics.median(h['rates'])):.2f} / "
                       f"{g(lambda h: max(h['rates'])):.2f} | {g(lambda h: sum(1 for x in h['rates'] if x == 0)):.0f} | "
-                      f"{g(lambda h: h['cpu']['others_pct']):.1f} | {g(lambda h: h['cpu']['main_pct']):.1f} |")
+                      f"{g(lambda h: h['cpu']['others_pct']):.1f} | {g(lambda h: h['cpu']['main_pct']):.1f} | "
+                      f"{sum(1 for h in hs if h.get('rt'))} of {len(hs)} runs |")
 
 
 if __name__ == "__main__":

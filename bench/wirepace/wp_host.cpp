@@ -5,7 +5,7 @@
 // TASK_MS replaces the program's tick (common_ticktime__): the programs declare one task with
 // INTERVAL T#1ms, which then runs at every tick of TASK_MS, so one build serves every interval.
 // After WARMUP_S it measures for SECONDS, then prints one JSON line on stdout:
-//   scans, period_us, scan_us {median, p99, max, mean, sd} (time inside config_run__),
+//   rt (scan thread got SCHED_FIFO 30 + mlockall, as OpenPLC), scans, period_us, scan_us {median, p99, max, mean, sd} (time inside config_run__),
 //   start_jitter_us {median, p99, max} (|actual scan start - its schedule|),
 //   cpu {main_pct, others_pct} (from /proc/self/task: the scan thread, and all other
 //   threads = the shims' bus workers; percent of one core over the window),
@@ -17,6 +17,9 @@
 
 #include <algorithm>
 #include <dirent.h>
+#include <pthread.h>
+#include <sched.h>
+#include <sys/mman.h>
 #include <errno.h>
 #include <math.h>
 #include <stdio.h>
@@ -96,6 +99,13 @@ int main(int argc, char **argv) {
     }
     double warmup = atof(argv[1]), seconds = atof(argv[2]);
     if (argc == 4) common_ticktime__ = 1000000ULL * (unsigned long long)atoi(argv[3]);
+    // As OpenPLC v3's main(): the scan thread at SCHED_FIFO 30 with its memory locked, when the
+    // process may (root or CAP_SYS_NICE). The shims start their bus workers at SCHED_OTHER
+    // explicitly, so only the scan thread is real-time. "rt" in the JSON says which it was.
+    struct sched_param sp;
+    sp.sched_priority = 30;
+    bool rt = pthread_setschedparam(pthread_self(), SCHED_FIFO, &sp) == 0 &&
+              mlockall(MCL_FUTURE | MCL_CURRENT) == 0;
     config_init__();
     struct timespec next;
     clock_gettime(CLOCK_MONOTONIC, &next);
@@ -138,11 +148,11 @@ int main(int argc, char **argv) {
     mean /= dur.empty() ? 1 : (double)dur.size();
     for (double d : dur) sd += (d - mean) * (d - mean);
     sd = dur.size() > 1 ? sqrt(sd / (double)(dur.size() - 1)) : 0;
-    printf("{\"scans\": %zu, \"period_us\": %.0f, \"window_s\": %.3f, "
+    printf("{\"rt\": %s, \"scans\": %zu, \"period_us\": %.0f, \"window_s\": %.3f, "
            "\"scan_us\": {\"median\": %.2f, \"p99\": %.2f, \"max\": %.2f, \"mean\": %.2f, \"sd\": %.2f}, "
            "\"start_jitter_us\": {\"median\": %.1f, \"p99\": %.1f, \"max\": %.1f}, "
            "\"cpu\": {\"main_pct\": %.2f, \"others_pct\": %.2f}, \"pubs\": [",
-           dur.size(), period * 1e6, w1 - w0, pct(dur, 0.5), pct(dur, 0.99), pct(dur, 1.0), mean, sd,
+           rt ? "true" : "false", dur.size(), period * 1e6, w1 - w0, pct(dur, 0.5), pct(dur, 0.99), pct(dur, 1.0), mean, sd,
            pct(late, 0.5), pct(late, 0.99), pct(late, 1.0),
            100 * (cm1 - cm0) / (w1 - w0), 100 * (co1 - co0) / (w1 - w0));
     for (size_t i = 0; i < g_pubs.size(); i++) printf("%s%ld", i ? ", " : "", g_pubs[i]);
