@@ -191,14 +191,14 @@ END_PROGRAM
 """ + CONFIG
 
 
-def scale_program(ports: list[str], per_bus: int) -> str:
+def scale_program(ports: list[str], per_bus: int, period: str = "T#0s") -> str:
     decl, body = [], []
     for b, port in enumerate(ports):
         for s in range(per_bus):
             n = b * per_bus + s
             decl.append(f"    d{n} : Counter_MTS9;")
             body.append(f"  d{n}(Enable := TRUE, Port := '{port}', SlaveId := {s + 1}, Line := l, "
-                        f"Period := T#0s);\n"
+                        f"Period := {period});\n"
                         f"  IF d{n}.Valid AND d{n}.Age = T#0s THEN {{{{ wp_pub({n}); }}}} END_IF;")
     return ("\nPROGRAM main\n  VAR\n    l : MB_LINE := (Baud := 115200);\n" + "\n".join(decl)
             + "\n  END_VAR\n" + "\n".join(body) + "\nEND_PROGRAM\n" + CONFIG)
@@ -329,6 +329,9 @@ def main() -> int:
     ap.add_argument("--scale", default="8x32", help="BUSESxDEVICES, or 0 to skip the scale run")
     ap.add_argument("--scale-task-ms", type=int, default=20)
     ap.add_argument("--scale-seconds", type=float, default=6.0)
+    ap.add_argument("--scale-period", default="T#0s",
+                    help="the blocks' Period in the scale run (T#0s: refresh back to back; e.g. T#1h: "
+                         "one refresh, then steady scans with nothing new)")
     ap.add_argument("--skip", default="", help="comma list of: lines,three,scale")
     args = ap.parse_args()
     skip = set(filter(None, args.skip.split(",")))
@@ -349,6 +352,9 @@ def main() -> int:
             or not intervals or min(intervals) <= 0 or skip - {"lines", "three", "scale"}:
         raise SystemExit("bad arguments: see --help (runs, seconds > 0; intervals > 0; "
                          "skip from lines,three,scale; at most 64 buses x 247 devices)")
+    if not re.fullmatch(r"T#[0-9]+(ms|s|m|h)", args.scale_period):
+        raise SystemExit(f"--scale-period wants an IEC TIME such as T#0s, T#500ms or T#1h, not "
+                         f"'{args.scale_period}'")
     tmp = tempfile.mkdtemp(prefix="wirepace-")
     procs_started = time.monotonic()
     try:
@@ -369,8 +375,8 @@ def main() -> int:
             if "three" not in skip:
                 v.compile("three", three_program(ports["three"]))
             if "scale" not in skip and buses:
-                v.compile("scale", scale_program(scale_ports, per_bus))
-                v.compile("scale1", scale_program(scale_ports[:1], 1))
+                v.compile("scale", scale_program(scale_ports, per_bus, args.scale_period))
+                v.compile("scale1", scale_program(scale_ports[:1], 1, args.scale_period))
         res: dict = {}
 
         def add(key, value):
@@ -503,7 +509,8 @@ def report(res, V, intervals, args, buses, per_bus) -> None:
                       f"{med([f['share'] for f in fs]):.2f} | {med([f['short'] for f in fs]):.0%} |")
     if "scale" not in args.skip and buses:
         print(f"\n## Scale: {buses} buses x {per_bus} MT-S9 at 115200 (simulators pace their replies), "
-              f"one Counter_MTS9 each in one program, task {args.scale_task_ms} ms; against 1 device\n")
+              f"one Counter_MTS9 each (Period := {args.scale_period}) in one program, task {args.scale_task_ms} ms; "
+              f"against 1 device\n")
         print("| variant | devices | scan us median | p99 | max | sd | start jitter us median | p99 | max | "
               "refreshes/s per device min / median / max | devices never refreshed | worker CPU % | "
               "scan thread CPU % | scan thread SCHED_FIFO |")
