@@ -1,5 +1,6 @@
 /* fbtest.h - host functions the ST test-support blocks (fbtest.st) call from their pragmas.
- * Implemented in fb_host.cpp; force-included into the iec2c output of every test program. */
+ * Implemented once in fbtest_hooks.cpp, linked by both test hosts (fb_host.cpp's test mode,
+ * tests/strucpp/v4_host.cpp); force-included into the iec2c output of every test program. */
 #ifndef FBTEST_H
 #define FBTEST_H
 #include <stdint.h>
@@ -26,6 +27,18 @@ int fbt_getenv(const char *name, uint8_t *buf, int max);
  *  e.g. '"hex": "01 06' counts FC06 frames to slave 1 in a log). */
 int fbt_sim(const uint8_t *req, int len, uint8_t *buf, int max, int *ok, long *raw, long *frames,
             const uint8_t *match, int match_len, long *matches);
+
+/* The host's side (a test host's scan loop; the programs do not call these). */
+/** The scan limit of a test run: MBFB_MAX_SCANS, default 6000. */
+long fbt_host_max_scans(void);
+/** The scan about to run (0-based): what fbt_scan and the FAIL/note lines report. */
+void fbt_host_set_scan(long scan);
+/** Nonzero once a check failed or the program called fbt_done: run no further scan. */
+int fbt_host_stop(void);
+/** The end of a test run after `scans` scans: closes the simulator control connection, prints
+ *  "N scans, P checks passed, F failed" (and "FAIL: no check ran" when none did); returns the
+ *  exit code: 0 when the program called fbt_done, no check failed and one passed, else 1. */
+int fbt_host_finish(long scans);
 #ifdef __cplusplus
 }
 #endif
