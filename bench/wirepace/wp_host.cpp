@@ -9,7 +9,11 @@
 //   start_jitter_us {median, p99, max} (|actual scan start - its schedule|),
 //   cpu {main_pct, others_pct} (from /proc/self/task: the scan thread, and all other
 //   threads = the shims' bus workers; percent of one core over the window),
-//   pubs [n per device] (wp_pub calls in the window).
+//   pubs [n per device] (wp_pub calls in the window);
+// and, when the program called wp_mark (bench/write_done.py), the whole run's scans:
+//   marks [[what, tag, scan], ...] (every wp_mark call, warm-up included; scan = 0-based
+//   index of the scan that made it), scan_ns [CLOCK_MONOTONIC ns of each scan's start],
+//   window_ns [start, end] of the measuring window (CLOCK_MONOTONIC ns).
 // Exit 0; 2 on bad arguments.
 #include "iec_types_all.h"
 #include "mbfb.h"
@@ -46,6 +50,20 @@ void wp_pub(int dev) {
     if (!g_measuring || dev < 0 || dev > 100000) return;
     if ((size_t)dev >= g_pubs.size()) g_pubs.resize((size_t)dev + 1, 0);
     g_pubs[(size_t)dev]++;
+}
+
+// wp_mark: the scan in which the program saw something (Execute rose, Done rose, ...).
+struct wp_mark_t { int what, tag; long scan; };
+static std::vector<wp_mark_t> g_marks;
+static long g_scan;
+void wp_mark(int what, int tag) {
+    if (g_marks.size() < 1000000) g_marks.push_back(wp_mark_t{what, tag, g_scan});
+}
+
+static long long mono_ns(void) {
+    struct timespec t;
+    clock_gettime(CLOCK_MONOTONIC, &t);
+    return (long long)t.tv_sec * 1000000000LL + t.tv_nsec;
 }
 
 static double now_s(void) {
@@ -112,17 +130,25 @@ int main(int argc, char **argv) {
     double t0 = (double)next.tv_sec + next.tv_nsec / 1e9;
     double period = common_ticktime__ / 1e9;
     std::vector<double> dur, late;
+    std::vector<long long> starts;    // every scan's start (CLOCK_MONOTONIC ns), for wp_mark
+    starts.reserve((size_t)((warmup + seconds) / period) + 1024);
+    g_marks.reserve(65536);
+    long long wn0 = 0;
     double cm0 = 0, co0 = 0, w0 = 0;
     unsigned long tick = 0;
     for (;;) {
         double sched = (double)next.tv_sec + next.tv_nsec / 1e9;
-        double a = now_s();
+        long long an = mono_ns();
+        double a = (double)an / 1e9;
         if (!g_measuring && a - t0 >= warmup) {
             g_measuring = true;
             cpu_split(&cm0, &co0);
             w0 = a;
+            wn0 = an;
         }
         if (g_measuring && a - w0 >= seconds) break;
+        g_scan = (long)starts.size();
+        starts.push_back(an);
         config_run__(tick++);
         double b = now_s();
         __CURRENT_TIME.tv_nsec += (long)common_ticktime__;   // updateTime() of OpenPLC
@@ -141,7 +167,8 @@ int main(int argc, char **argv) {
         }
         while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &next, NULL) == EINTR) {}
     }
-    double cm1, co1, w1 = now_s();
+    long long wn1 = mono_ns();
+    double cm1, co1, w1 = (double)wn1 / 1e9;
     cpu_split(&cm1, &co1);
     double mean = 0, sd = 0;
     for (double d : dur) mean += d;
@@ -156,7 +183,16 @@ int main(int argc, char **argv) {
            pct(late, 0.5), pct(late, 0.99), pct(late, 1.0),
            100 * (cm1 - cm0) / (w1 - w0), 100 * (co1 - co0) / (w1 - w0));
     for (size_t i = 0; i < g_pubs.size(); i++) printf("%s%ld", i ? ", " : "", g_pubs[i]);
-    printf("]}\n");
+    printf("]");
+    if (!g_marks.empty()) {
+        printf(", \"window_ns\": [%lld, %lld], \"marks\": [", wn0, wn1);
+        for (size_t i = 0; i < g_marks.size(); i++)
+            printf("%s[%d, %d, %ld]", i ? ", " : "", g_marks[i].what, g_marks[i].tag, g_marks[i].scan);
+        printf("], \"scan_ns\": [");
+        for (size_t i = 0; i < starts.size(); i++) printf("%s%lld", i ? ", " : "", starts[i]);
+        printf("]");
+    }
+    printf("}\n");
     fflush(stdout);
     mbfb_shutdown();
     return 0;
