@@ -80,7 +80,8 @@ class Diag(ctypes.Structure):
     _fields_ = [(n, ctypes.c_uint32) for n in (
         "requests", "good", "timeouts", "crc_errors", "bad_replies", "exceptions", "retries",
         "last_exception", "last_rtt_us", "offline")] + [("last_error", ctypes.c_int32)] + [
-        (n, ctypes.c_uint32) for n in ("stray_bytes", "resyncs", "refreshes", "refresh_us")]
+        (n, ctypes.c_uint32) for n in (
+            "stray_bytes", "resyncs", "refreshes", "refresh_us", "line_permille")]
 
 
 class Shims:

@@ -220,20 +220,24 @@ typedef struct mbfb_diag {
                                  attempt (README, "Late replies")                      */
     uint32_t refreshes;       /* plan refreshes finished well on this device          */
     uint32_t refresh_us;      /* time between the starts of its last two refreshes    */
+    uint32_t line_permille;   /* its bus's busy_permille (mbfb_bus_diag_t) when copied */
 } mbfb_diag_t;
 
 /** Copy the device's diagnostics into *out. Returns 0 or -MBFB_E_BADHANDLE. */
 int mbfb_dev_diag(int dev, mbfb_diag_t *out);
 
 /** A number that changes whenever the device's diagnostics change (one atomic load): copy
- *  them with mbfb_dev_diag only when it differs from the last one seen. */
+ *  them with mbfb_dev_diag only when it differs from the last one seen. line_permille
+ *  does not move it: a copy holds the line's use as of that copy (a line gone quiet
+ *  reads 0 in a copy made a second later, not in the last one made). */
 uint32_t mbfb_dev_diag_seq(int dev);
 
 /** Bus diagnostics (shared line). */
 typedef struct mbfb_bus_diag_s { /* tag differs from the function (C++ -Wshadow) */
     uint32_t transactions;    /* requests put on the wire (every attempt)               */
     uint32_t busy_permille;   /* line in use (request, turnaround, reply, gaps owed) over
-                                 the last second, 0..1000                               */
+                                 the last second, 0..1000, as the worker keeps it (after
+                                 every attempt; every 100 ms while idle)                */
     uint32_t plans;           /* plans running                                          */
     uint32_t stray_bytes;     /* as mbfb_diag_t                                         */
 } mbfb_bus_diag_t;

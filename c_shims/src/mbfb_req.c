@@ -190,6 +190,8 @@ int mbfb_dev_diag(int dev, mbfb_diag_t *out)
     /* stray bytes belong to the line, not to one device: the bus's count */
     b = __atomic_load_n(&mbfb_buses[d->bus], __ATOMIC_ACQUIRE);
     out->stray_bytes = b ? __atomic_load_n(&b->stray_bytes, __ATOMIC_RELAXED) : 0;
+    /* the line's share of the last second, as the worker keeps it (one load) */
+    out->line_permille = b ? __atomic_load_n(&b->busy_permille, __ATOMIC_RELAXED) : 0;
     return 0;
 }
 
@@ -207,30 +209,25 @@ uint32_t mbfb_dev_diag_seq(int dev)
            (b ? __atomic_load_n(&b->stray_bytes, __ATOMIC_RELAXED) : 0u);
 }
 
-/* Bus diagnostics; busy_permille sums the 100 ms buckets of the last second. */
+/* Bus diagnostics; busy_permille is the worker's sum of the 100 ms buckets of the last
+ * second (kept up to date by the worker: no clock read here). */
 int mbfb_bus_diag(int dev, mbfb_bus_diag_t *out)
 {
     mbfb_dev_t *d = dev_of(dev);
     mbfb_bus_t *b;
-    uint32_t now, busy = 0, plans = 0;
+    uint32_t plans = 0;
     int n;
 
     if (out == NULL || d == NULL ||
         (b = __atomic_load_n(&mbfb_buses[d->bus], __ATOMIC_ACQUIRE)) == NULL)
         return -MBFB_E_BADHANDLE;
-    now = (uint32_t)(mbfb_now_us() / 100000);
-    for (int i = 0; i < MBFB_BUSY_BUCKETS; i++) {
-        uint32_t e = __atomic_load_n(&b->busy_epoch[i], __ATOMIC_ACQUIRE);
-        if (now - e < MBFB_BUSY_BUCKETS)
-            busy += __atomic_load_n(&b->busy_us[i], __ATOMIC_RELAXED);
-    }
     n = __atomic_load_n(&b->n_plans, __ATOMIC_ACQUIRE);
     for (int i = 0; i < n; i++) {
         mbfb_plan_t *p = __atomic_load_n(&b->plans[i], __ATOMIC_ACQUIRE);
         plans += p != NULL && __atomic_load_n(&p->running, __ATOMIC_RELAXED);
     }
     out->transactions = __atomic_load_n(&b->transactions, __ATOMIC_RELAXED);
-    out->busy_permille = busy / 1000 > 1000 ? 1000 : busy / 1000;
+    out->busy_permille = __atomic_load_n(&b->busy_permille, __ATOMIC_RELAXED);
     out->plans = plans;
     out->stray_bytes = __atomic_load_n(&b->stray_bytes, __ATOMIC_RELAXED);
     return 0;

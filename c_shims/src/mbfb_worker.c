@@ -49,6 +49,21 @@ static void count_failure(mbfb_dev_t *dev, int err)
         MBFB_DIAG_INC(dev, bad_replies);
 }
 
+/* Sum the 100 ms buckets of the second before `now` into bus->busy_permille (what the
+ * scan reads: one load). Returns the busy microseconds still in the window: while it is
+ * not 0 the idle worker wakes every 100 ms to slide the window (worker loop), so the
+ * value falls to 0 within a second of the line going quiet. */
+static uint32_t busy_update(mbfb_bus_t *bus, int64_t now)
+{
+    uint32_t epoch = (uint32_t)(now / 100000), busy = 0;
+    for (int i = 0; i < MBFB_BUSY_BUCKETS; i++)
+        if (epoch - __atomic_load_n(&bus->busy_epoch[i], __ATOMIC_RELAXED) < MBFB_BUSY_BUCKETS)
+            busy += __atomic_load_n(&bus->busy_us[i], __ATOMIC_RELAXED);
+    __atomic_store_n(&bus->busy_permille, busy / 1000 > 1000 ? 1000u : busy / 1000,
+                     __ATOMIC_RELAXED);
+    return busy;
+}
+
 /* Account `us` of line time in the 100 ms bucket of now (busy_permille). */
 static void busy_add(mbfb_bus_t *bus, int64_t now, int64_t us)
 {
@@ -61,6 +76,7 @@ static void busy_add(mbfb_bus_t *bus, int64_t now, int64_t us)
         __atomic_store_n(&bus->busy_epoch[i], epoch, __ATOMIC_RELEASE);
     }
     __atomic_fetch_add(&bus->busy_us[i], (uint32_t)us, __ATOMIC_RELAXED);
+    busy_update(bus, now);
 }
 
 /* Wait for a silent line before an attempt: the gap, or the settle owed after a
@@ -675,16 +691,21 @@ void *mbfb_worker_main(void *arg)
 
     while (!__atomic_load_n(&bus->stop, __ATOMIC_ACQUIRE)) {
         mbfb_plan_t *p;
-        int64_t wake_at;
+        int64_t wake_at, now;
         while (sem_trywait(&bus->wake) == 0) { /* the checks below see every post */
         }
         if (run_posted(bus))
             break;
-        p = next_plan(bus, mbfb_now_us(), &wake_at);
+        now = mbfb_now_us();
+        p = next_plan(bus, now, &wake_at);
         if (p != NULL) {
             run_refresh(bus, p);
             continue;
         }
+        /* idle: busy_permille falls as the window slides (at most 11 wakes after the
+         * last attempt, none once it is 0) */
+        if (busy_update(bus, now) != 0 && (now / 100000 + 1) * 100000 < wake_at)
+            wake_at = (now / 100000 + 1) * 100000;
         sleep_until(bus, wake_at);
     }
     if (bus->fd >= 0)

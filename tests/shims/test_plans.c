@@ -9,6 +9,9 @@
  *              no bus time
  *   writes     a write posted while plans run goes before the next plan read
  *   diag       diag_seq changes with the diagnostics; bus diag counts plans
+ *   refresh diag  refreshes counted, refresh_us against the period and this test's clock,
+ *              line_permille while the line is in use and 0 once it has been quiet for
+ *              the window (a second), without moving diag_seq
  *   no port    a port that cannot be opened fails every plan of the bus in one pass
  *              (by snapshot numbers), and is tried again every probe interval only
  */
@@ -297,6 +300,87 @@ static void writes_first(void)
     teardown();
 }
 
+/* Wait (at most 60 s) until the device's copy shows line_permille == 0; 1 if it did. */
+static int wait_line_quiet(int dev)
+{
+    for (int64_t end = t_now_us() + 60000000; t_now_us() < end; t_sleep_ms(10))
+        if (t_diag(dev).line_permille == 0)
+            return 1;
+    return 0;
+}
+
+/* Issue 10: the achieved refresh rate and the line's use, per device. Every bound holds
+ * however slow this machine is (a slow machine only makes the waits longer):
+ *  - a refresh starts no earlier than the period after the start of the one before (the
+ *    worker's schedule), so refresh_us >= period;
+ *  - every refresh started between t0 (before mbfb_plan_set) and t1 (after the plan went
+ *    quiet), the other gaps are each >= period: refresh_us <= t1 - t0 - (n - 2) * period;
+ *  - a transaction stays in the busy window until its 100 ms bucket is 10 buckets old:
+ *    line_permille cannot read 0 earlier than 0.9 s after a read posted at t_post. */
+static void refresh_diag(void)
+{
+    mbfb_plan_item_t it[1] = {{3, 0, 2, MBFB_TIER_EVERY}};
+    const int period_ms = 20, n_want = 6;
+    mbfb_snap_t s;
+    mbfb_diag_t d;
+    mbfb_bus_diag_t bd;
+    uint32_t seq = 0, ds;
+    int dev, plan, h, bad = 0;
+    int64_t t0, t1, t_post, t_zero;
+
+    t_scenario = "refresh diag";
+    dev = mbfb_dev_open(open_bus(), 1);
+    plan = mbfb_plan_open(dev);
+    d = t_diag(dev);
+    CHECK_EQ(d.refreshes, 0);
+    CHECK_EQ(d.refresh_us, 0);
+    CHECK_EQ(d.line_permille, 0);
+    t0 = t_now_us();
+    CHECK_EQ(mbfb_plan_set(plan, it, 1, period_ms, 0), 0);
+    while (seq < (uint32_t)n_want && wait_snap(plan, &seq, &s, NULL) == 1)
+        bad += s.result != MBFB_OK;
+    CHECK(seq >= (uint32_t)n_want);
+    /* while the plan runs the line is in use: a refresh is due every 20 ms, so the window
+     * cannot empty while the worker keeps the value */
+    d = t_diag(dev);
+    CHECK(d.line_permille > 0 && d.line_permille <= 1000);
+    CHECK(d.refreshes >= (uint32_t)n_want);
+    CHECK(d.refresh_us > 0);
+    CHECK_EQ(mbfb_plan_stop(plan), 0);
+    /* quiet for the window: no refresh can be on the wire any more */
+    CHECK_EQ(wait_line_quiet(dev), 1);
+    t1 = t_now_us();
+    while (mbfb_plan_take(plan, &seq, &s) == 1)
+        bad += s.result != MBFB_OK;
+    CHECK_EQ(bad, 0);
+    d = t_diag(dev);
+    printf("refresh diag: %u refreshes, refresh_us %u (period %d ms), %.1f s\n",
+           (unsigned)d.refreshes, (unsigned)d.refresh_us, period_ms, (t1 - t0) / 1e6);
+    CHECK_EQ(d.refreshes, seq); /* every published refresh was good, each counted once */
+    CHECK(d.refresh_us >= (uint32_t)period_ms * 1000u);
+    CHECK((int64_t)d.refresh_us <= t1 - t0 - ((int64_t)seq - 2) * period_ms * 1000);
+    CHECK_EQ(d.line_permille, 0);
+    CHECK_EQ(mbfb_bus_diag(dev, &bd), 0);
+    CHECK_EQ(bd.busy_permille, 0); /* the same value as the bus's */
+    /* one read on the quiet line: in use in the copy made after it, 0 again once it has
+     * left the window, and the diagnostics' sequence does not move meanwhile */
+    t_post = t_now_us();
+    h = mbfb_post(dev, 3, 0, 2, NULL);
+    CHECK_EQ(t_wait(h), MBFB_REQ_DONE);
+    CHECK_EQ(mbfb_take(h, NULL, 0), 0);
+    ds = mbfb_dev_diag_seq(dev);
+    d = t_diag(dev);
+    CHECK(d.line_permille > 0);
+    CHECK_EQ(mbfb_bus_diag(dev, &bd), 0);
+    CHECK(bd.busy_permille > 0);
+    CHECK_EQ(wait_line_quiet(dev), 1);
+    t_zero = t_now_us();
+    CHECK(t_zero - t_post >= 900000);
+    CHECK_EQ(mbfb_dev_diag_seq(dev), ds);
+    CHECK_EQ(t_diag(dev).refreshes, seq); /* a posted read is no refresh */
+    teardown();
+}
+
 /* A port that cannot be opened. The backend's open() is wrapped (the real RTU open,
  * which fails on a missing path) to record, at each try, how many snapshots every plan
  * has published: between two tries each running plan gets exactly one NOPORT snapshot
@@ -396,5 +480,6 @@ int main(void)
     stop();
     fairness();
     writes_first();
+    refresh_diag();
     return t_done("test_plans");
 }
