@@ -24,26 +24,28 @@ its reply (the S>M frame right after it, an echo = success). Per write:
 
 Clocks. The host stamps scan starts with CLOCK_MONOTONIC; ptyline stamps frames with
 CLOCK_MONOTONIC too, but logs them relative to its own start t0, which it does not print.
-t0 is bracketed: t0 <= the moment this script has read ptyline's port lines (ptyline reads
-t0 before printing them), and t0 >= (monotonic time just before this script writes a probe
-frame, to slave 247 which nobody answers, on the idle line) - (the probe's logged start):
-a byte cannot be on the wire before it was written. Every write adds its own lower bound
-(the request cannot start before the scan that posted it). The figures use the middle of
-the bracket; a write whose lag or false-Done verdict differs between the two ends of the
-bracket is counted as "ambiguous". The bracket's width is printed per case.
+t0 is bracketed by probes: before the first case and after each, this script reads one
+register of the MV-D94 five times as the line's master (the line is otherwise idle then).
+A request cannot be on the wire before it was written, so t0 >= (monotonic time just
+before the write) - (the request's logged start); the reply's last byte reaches the master
+at its end on the wire, never before, so t0 <= (monotonic time just after reading it) -
+(the reply's logged end). Also t0 <= the moment this script read ptyline's port lines
+(ptyline reads t0 before printing them), and every write's request cannot start before the
+scan that posted it. The figures use the middle of the bracket; a write whose lag or
+false-Done verdict differs between the two ends of the bracket is counted as "ambiguous".
+The bracket's width is printed per case.
 """
 from __future__ import annotations
 
 import argparse
 import os
-import statistics
+import select
 import sys
 import time
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import wire_pace as wp  # noqa: E402  (its Variant, Line, CONFIG, host_json, log)
 
-PROBE_SLAVE = 247          # a probe frame to a slave nobody simulates: no reply
 SV_BASE = 100              # set points written: SV_BASE + (k MOD 1000), raw counts at DP 0
 
 
@@ -91,20 +93,34 @@ def crc16(data: bytes) -> bytes:
     return bytes((crc & 0xFF, crc >> 8))
 
 
-def probe(line: wp.Line, n: int) -> tuple[int, bytes]:
-    """Writes an FC03 request (register n) to PROBE_SLAVE on the master's side of the idle
-    line; returns CLOCK_MONOTONIC (ns) just before the write, and the frame."""
-    frame = bytes((PROBE_SLAVE, 3, n >> 8, n & 0xFF, 0, 1))
-    frame += crc16(frame)
-    fd = os.open(line.m, os.O_RDWR | os.O_NOCTTY)
+def probe(line: wp.Line, first: int, reps: int = 5) -> list[tuple[int, int, bytes]]:
+    """On the idle line, as its master: `reps` FC03 reads (register first, first + 1, ...:
+    each request is a unique frame) from the MV-D94. Returns per exchange
+    (CLOCK_MONOTONIC ns just before writing the request, just after reading the reply's last
+    byte, the request)."""
+    out = []
+    fd = os.open(line.m, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
     try:
         time.sleep(0.1)                # ptyline notices an opener within ~10 ms
-        t = time.monotonic_ns()
-        os.write(fd, frame)
-        time.sleep(0.1)
+        for n in range(first, first + reps):
+            a, c = n % 126, 1 + n // 126   # unique (address, count) in the FC03 window 0..0x7D
+            frame = bytes((1, 3, 0, a, 0, c))
+            frame += crc16(frame)
+            got = b""
+            tw = time.monotonic_ns()
+            os.write(fd, frame)
+            tr, limit = None, time.monotonic() + 0.5
+            while len(got) < 5 + 2 * c and time.monotonic() < limit:
+                if select.select([fd], [], [], 0.05)[0]:
+                    got += os.read(fd, 64)
+                    tr = time.monotonic_ns()
+            if len(got) != 5 + 2 * c or got[:3] != bytes((1, 3, 2 * c)):
+                raise SystemExit(f"probe: register {a}: no reply from the simulated MV-D94 ({got.hex(' ')})")
+            out.append((tw, tr, frame))
+            time.sleep(0.03)
     finally:
         os.close(fd)
-    return t, frame
+    return out
 
 
 def frames(path: str) -> list[tuple[float, str, bytes]]:
@@ -118,18 +134,21 @@ def frames(path: str) -> list[tuple[float, str, bytes]]:
     return out
 
 
-def analyse(line: wp.Line, host: dict, probes: list[tuple[int, bytes]], ready_ns: int, tail_s: float,
+def analyse(line: wp.Line, host: dict, probes: list[tuple[int, int, bytes]], ready_ns: int, tail_s: float,
             first: int):
     """One case; its frames are those from index `first` of the log on (the probes: all)."""
     allfr = frames(line.logf)
     fr = allfr[first:]
     char_ns = line.char_us * 1000
-    # t0 bracket: a lower bound from each probe (each frame is unique: its register address)
+    # t0 bracket: from each probe exchange, t0 >= (write time - request's start) and
+    # t0 <= (read time - reply's end); also t0 <= ready (ptyline reads t0 before printing)
     lo, hi = -float("inf"), float(ready_ns)
-    for t, fb in probes:
-        for f in allfr:
+    for tw, tr, fb in probes:
+        for j, f in enumerate(allfr):
             if f[1] == "M>S" and f[2] == fb:
-                lo = max(lo, t - f[0] * 1000)
+                lo = max(lo, tw - f[0] * 1000)
+                if j + 1 < len(allfr) and allfr[j + 1][1] == "S>M":
+                    hi = min(hi, tr - (allfr[j + 1][0] * 1000 + len(allfr[j + 1][2]) * char_ns))
     scan = host["scan_ns"]
     w0, w1 = host["window_ns"]
     # writes: Execute mark -> the next Done/Error mark with the same tag
@@ -176,7 +195,7 @@ def analyse(line: wp.Line, host: dict, probes: list[tuple[int, bytes]], ready_ns
            "clock_bad": lo > hi, "n": len(measured), "no_done": 0, "errors": 0, "no_request": 0,
            "lag": [], "ambiguous": 0, "false_done": 0, "exec_req_scans": [], "exec_req_ms": [],
            "exec_done_scans": [], "exec_done_ms": [], "retries": 0, "first_after_us": [],
-           "late": [], "reply_to_done_ms": [], "retried": []}
+           "late": [], "reply_to_done_ms": [], "retried": [], "lag0_us": []}
     mid = (lo + hi) / 2
     for w in measured:
         if w["end"] is None:
@@ -214,11 +233,14 @@ def analyse(line: wp.Line, host: dict, probes: list[tuple[int, bytes]], ready_ns
         res["exec_done_scans"].append(w["end"] - w["exec"])
         res["exec_done_ms"].append((scan[w["end"]] - scan[w["exec"]]) / 1e6)
         res["reply_to_done_ms"].append((scan[w["end"]] - reply_end) / 1e6)
+        if m == 0 and not fm:
+            res["lag0_us"].append((scan[w["end"]] - reply_end) / 1000)
     # other traffic in the window (is the line busy or idle?)
     res["other_tx_s"] = sum(1 for t, d, b in fr if d.startswith("M>S") and not (len(b) == 8 and b[1] == 6)
                             and b[0] == 1 and w0 <= mid + t * 1000 < w1) / ((w1 - w0) / 1e9)
     res["collisions"] = sum(1 for t, d, b in fr if d.endswith("*") and w0 <= mid + t * 1000 < w1)
-    res["last_tag"] = writes[-1]["tag"] if writes and writes[-1]["ok"] else None
+    echoed = [r["val"] for r in reqs if r["echo"]]
+    res["last_wire"] = echoed[-1] if echoed else None
     return res
 
 
@@ -267,7 +289,7 @@ def main() -> int:
         line = wp.Line(v.ptyline, tmp, "mv", 9600, "8N2", ["mvd94:1"])
         ready_ns = int(line.ready * 1e9)
         try:
-            probes = [probe(line, 0)]
+            probes = probe(line, 0)
             for i, (period, what) in enumerate(cases):
                 for ms in intervals:
                     wp.log(f"Period {period} ({what}), task {ms} ms: {warm[i]:g} + {args.seconds:g} s")
@@ -282,7 +304,7 @@ def main() -> int:
                         raise SystemExit(f"Period {period}, task {ms} ms: no write was raised "
                                          "(the block never Valid?)")
                     time.sleep(0.2)                          # let ptyline log the last frames
-                    probes.append(probe(line, len(probes)))
+                    probes += probe(line, len(probes))
                     time.sleep(0.1)
                     r = analyse(line, host, probes, ready_ns, args.tail, first)
                     r.update(period=period, what=what, ms=ms, rt=host["rt"], scans=host["scans"])
@@ -319,6 +341,9 @@ def report(rows, args, sv) -> None:
              f"echoed request, {r['collisions']} collisions" for r in rows
              if r["retries"] or r["no_request"] or r["collisions"]]
     print("\n" + ("; ".join(extra) + "." if extra else "No retries, no collisions, every Done has its echoed request."))
+    print("Quickest Done in the first scan after its reply (that scan started this long after the "
+          "reply's end): " + ", ".join(f"{r['period']}/{r['ms']} ms {min(r['lag0_us'], default=float('nan')):.0f} us"
+                                       for r in rows) + ".")
     for r in rows:
         for x in r["late"]:
             print(f"late Done, {r['period']}/{r['ms']} ms: value {x['tag']}, lag {x['lag']} scans; first scan "
@@ -328,8 +353,8 @@ def report(rows, args, sv) -> None:
         for x in r["retried"]:
             print(f"retried write, {r['period']}/{r['ms']} ms: value {x['tag']}; the wire from its first request "
                   f"(ms after its Execute scan): " + "; ".join(x["frames"]))
-    last = rows[-1]["last_tag"] if rows else None
-    print(f"\nSimulator's SV at the end: {sv.get('raw')} (last write Done: {last}).")
+    last = rows[-1]["last_wire"] if rows else None
+    print(f"\nSimulator's SV at the end: {sv.get('raw')}; the last set point acknowledged on the wire: {last}.")
 
 
 if __name__ == "__main__":
