@@ -93,17 +93,19 @@ def crc16(data: bytes) -> bytes:
     return bytes((crc & 0xFF, crc >> 8))
 
 
-def probe(line: wp.Line, first: int, reps: int = 5) -> list[tuple[int, int, bytes]]:
-    """On the idle line, as its master: `reps` FC03 reads (register first, first + 1, ...:
-    each request is a unique frame) from the MV-D94. Returns per exchange
-    (CLOCK_MONOTONIC ns just before writing the request, just after reading the reply's last
-    byte, the request)."""
+def probe(line: wp.Line, first: int, reps: int = 5) -> list[tuple[int, int, bytes, int, int]]:
+    """On the idle line, as its master: `reps` FC03 reads of 2 registers from 0x30 + first,
+    0x31 + first, ... (words the blocks never read: each request is a unique frame) from the
+    MV-D94. Returns per exchange (CLOCK_MONOTONIC ns just before writing the request, just
+    after reading the reply's last byte, the request, and the range of frame-log indexes the
+    probes' frames are in)."""
     out = []
+    n0 = len(frames(line.logf))
     fd = os.open(line.m, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
     try:
         time.sleep(0.1)                # ptyline notices an opener within ~10 ms
         for n in range(first, first + reps):
-            a, c = n % 126, 1 + n // 126   # unique (address, count) in the FC03 window 0..0x7D
+            a, c = 0x30 + n % 0x40, 2 + n // 0x40   # unique, inside the FC03 window 0..0x7D
             frame = bytes((1, 3, 0, a, 0, c))
             frame += crc16(frame)
             got = b""
@@ -120,7 +122,9 @@ def probe(line: wp.Line, first: int, reps: int = 5) -> list[tuple[int, int, byte
             time.sleep(0.03)
     finally:
         os.close(fd)
-    return out
+    time.sleep(0.1)                    # ptyline logs a frame after its t3.5 of silence
+    n1 = len(frames(line.logf))
+    return [x + (n0, n1) for x in out]
 
 
 def frames(path: str) -> list[tuple[float, str, bytes]]:
@@ -134,7 +138,7 @@ def frames(path: str) -> list[tuple[float, str, bytes]]:
     return out
 
 
-def analyse(line: wp.Line, host: dict, probes: list[tuple[int, int, bytes]], ready_ns: int, tail_s: float,
+def analyse(line: wp.Line, host: dict, probes: list[tuple[int, int, bytes, int, int]], ready_ns: int, tail_s: float,
             first: int):
     """One case; its frames are those from index `first` of the log on (the probes: all)."""
     allfr = frames(line.logf)
@@ -143,8 +147,9 @@ def analyse(line: wp.Line, host: dict, probes: list[tuple[int, int, bytes]], rea
     # t0 bracket: from each probe exchange, t0 >= (write time - request's start) and
     # t0 <= (read time - reply's end); also t0 <= ready (ptyline reads t0 before printing)
     lo, hi = -float("inf"), float(ready_ns)
-    for tw, tr, fb in probes:
-        for j, f in enumerate(allfr):
+    for tw, tr, fb, n0, n1 in probes:
+        for j in range(n0, min(n1, len(allfr))):
+            f = allfr[j]
             if f[1] == "M>S" and f[2] == fb:
                 lo = max(lo, tw - f[0] * 1000)
                 if j + 1 < len(allfr) and allfr[j + 1][1] == "S>M":
@@ -264,6 +269,7 @@ def main() -> int:
     ap.add_argument("--every", type=int, default=3, help="scans from one write's end to the next Execute")
     ap.add_argument("--tail", type=float, default=1.0,
                     help="writes raised in the window's last TAIL s are not counted (may still be running)")
+    ap.add_argument("--keep", metavar="DIR", help="keep ptyline's frame log and the host's JSON lines there")
     args = ap.parse_args()
     try:
         intervals = [int(x) for x in args.intervals.split(",") if x]
@@ -273,6 +279,8 @@ def main() -> int:
             or args.tail < 0 or args.every < 2 or args.long_period <= 0):
         raise SystemExit("bad arguments: intervals > 0, seconds > tail >= 0, warmup >= 0, every >= 2, "
                          "long-period > 0 (see --help)")
+    if args.keep and not os.path.isdir(args.keep):
+        raise SystemExit(f"--keep {args.keep}: not a directory")
     tmp = wp.tempfile.mkdtemp(prefix="writedone-")
     started = time.monotonic()
     rows = []
@@ -305,13 +313,18 @@ def main() -> int:
                                          "(the block never Valid?)")
                     time.sleep(0.2)                          # let ptyline log the last frames
                     probes += probe(line, len(probes))
-                    time.sleep(0.1)
+                    if args.keep:
+                        with open(os.path.join(args.keep, f"host-{period[2:]}-{ms}ms.json"), "w",
+                                  encoding="utf-8") as fh:
+                            fh.write(p.stdout)
                     r = analyse(line, host, probes, ready_ns, args.tail, first)
                     r.update(period=period, what=what, ms=ms, rt=host["rt"], scans=host["scans"])
                     rows.append(r)
             sv = line.sim.control({"op": "get", "addr": 1, "reg": "SV"})
         finally:
             line.close()
+            if args.keep:
+                wp.shutil.copy(line.logf, os.path.join(args.keep, "frames.log"))
     finally:
         wp.shutil.rmtree(tmp, ignore_errors=True)
     report(rows, args, sv)
