@@ -16,8 +16,9 @@
 # -D (cached); the environment wins, and where a cached value is used the summary says so.
 
 set(MBFB_MATIEC_GIT_URL_DEFAULT "https://github.com/beremiz/matiec.git")
-# The commit every fb test and the runner were verified with (beremiz matiec, 2024-10-16).
-set(MBFB_MATIEC_GIT_COMMIT_DEFAULT "6bb2c339df6fd096d52f5342be228b0811fef771")
+# The commit every fb test and the runner were verified with (beremiz matiec, 2024-04-26): the
+# last before 8a06b3b, from which FOR i := a TO a runs zero times (tools/matiec/README.md).
+set(MBFB_MATIEC_GIT_COMMIT_DEFAULT "d3196244bf50b2d6d512a0240e10dfa75edbeb7b")
 
 # _mbfb_setting(VAR DEFAULT DOC): VAR from the environment (wins; not cached, so the next run
 # without it does not inherit it), else from the cache (cmake -DVAR=...), else DEFAULT;

@@ -1,0 +1,46 @@
+#!/usr/bin/env python3
+"""Every FOR loop in st_src/*.st has literal or named-constant bounds.
+
+Upstream matiec since commit 8a06b3b (2024-06) compiles `FOR i := a TO b` so that it runs zero
+times when b = a (tools/matiec/README.md); OpenPLC's matiec does not. A bound computed at run
+time (`NRef - 1`) can equal the start, so the blocks keep such loops out: constant bounds and an
+IF inside. Exit 0 when every loop qualifies (and at least one loop was found), 1 otherwise.
+"""
+import glob
+import os
+import re
+import sys
+
+ROOT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..")
+COMMENT = re.compile(r"\(\*.*?\*\)", re.S)
+PRAGMA = re.compile(r"\{\{.*?\}\}", re.S)
+FOR = re.compile(r"\bFOR\s+\w+\s*:=\s*(.+?)\s+TO\s+(.+?)(?:\s+BY\s+(.+?))?\s+DO\b", re.S | re.I)
+CONSTANTS = re.compile(r"\bVAR(?:_GLOBAL)?\s+CONSTANT\b(.*?)\bEND_VAR\b", re.S | re.I)
+LITERAL = re.compile(r"-?\d+")
+
+
+def main() -> int:
+    bad, loops = [], 0
+    for path in sorted(glob.glob(os.path.join(ROOT, "st_src", "*.st"))):
+        keep_lines = lambda m: "\n" * m.group(0).count("\n")  # noqa: E731
+        text = PRAGMA.sub(keep_lines, COMMENT.sub(keep_lines, open(path, encoding="utf-8").read()))
+        names = {m.group(1).upper() for block in CONSTANTS.findall(text)
+                 for m in re.finditer(r"(\w+)\s*:", block)}
+        for m in FOR.finditer(text):
+            loops += 1
+            line = text.count("\n", 0, m.start()) + 1
+            for bound in filter(None, m.groups()):
+                b = bound.strip()
+                if not (LITERAL.fullmatch(b) or b.upper() in names):
+                    bad.append(f"{os.path.relpath(path, ROOT)}:{line}: FOR bound '{b}' is not a constant")
+    for b in bad:
+        print(b)
+    if loops == 0:
+        print("no FOR loop found in st_src/*.st: the check would pass empty")
+        return 1
+    print(f"{loops} FOR loops, {len(bad)} with a bound that is not a constant")
+    return 1 if bad else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
