@@ -38,6 +38,7 @@ The bracket's width is printed per case.
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import select
 import sys
@@ -243,6 +244,8 @@ def analyse(line: wp.Line, host: dict, probes: list[tuple[int, int, bytes, int, 
     # other traffic in the window (is the line busy or idle?)
     res["other_tx_s"] = sum(1 for t, d, b in fr if d.startswith("M>S") and not (len(b) == 8 and b[1] == 6)
                             and b[0] == 1 and w0 <= mid + t * 1000 < w1) / ((w1 - w0) / 1e9)
+    res["unanswered"] = [f"{b.hex(' ')}" for i, (t, d, b) in enumerate(fr[:-1])
+                         if d.startswith("M>S") and b[0] == 1 and not fr[i + 1][1].startswith("S>M")]
     res["collisions"] = sum(1 for t, d, b in fr if d.endswith("*") and w0 <= mid + t * 1000 < w1)
     echoed = [r["val"] for r in reqs if r["echo"]]
     res["last_wire"] = echoed[-1] if echoed else None
@@ -298,6 +301,7 @@ def main() -> int:
         ready_ns = int(line.ready * 1e9)
         try:
             probes = probe(line, 0)
+            line.sim.control({"op": "log", "clear": True})
             for i, (period, what) in enumerate(cases):
                 for ms in intervals:
                     wp.log(f"Period {period} ({what}), task {ms} ms: {warm[i]:g} + {args.seconds:g} s")
@@ -308,6 +312,7 @@ def main() -> int:
                     if p.returncode != 0:
                         raise SystemExit(f"program exited {p.returncode}:\n{p.stderr[-2000:]}")
                     host = wp.host_json(p.stdout)
+                    simlog = line.sim.control({"op": "log", "clear": True})["frames"]
                     if "marks" not in host:
                         raise SystemExit(f"Period {period}, task {ms} ms: no write was raised "
                                          "(the block never Valid?)")
@@ -317,8 +322,19 @@ def main() -> int:
                         with open(os.path.join(args.keep, f"host-{period[2:]}-{ms}ms.json"), "w",
                                   encoding="utf-8") as fh:
                             fh.write(p.stdout)
+                        with open(os.path.join(args.keep, f"sim-{period[2:]}-{ms}ms.json"), "w",
+                                  encoding="utf-8") as fh:
+                            json.dump(simlog, fh)
                     r = analyse(line, host, probes, ready_ns, args.tail, first)
                     r.update(period=period, what=what, ms=ms, rt=host["rt"], scans=host["scans"])
+                    # what the simulator made of frames it did not answer (its log of this case)
+                    r["sim_notes"] = [f"{e['hex']} ({e['info']})" for e in simlog
+                                      if e.get("dir") == "rx" and e.get("info")]
+                    cf = frames(line.logf)[first:]
+                    r["counts"] = (sum(1 for e in simlog if e.get("dir") == "rx"),
+                                   sum(1 for e in simlog if e.get("dir") == "tx"),
+                                   sum(1 for t, d, b in cf if d.startswith("M>S") and b[0] == 1),
+                                   sum(1 for t, d, b in cf if d.startswith("S>M")), len(simlog) >= 4000)
                     rows.append(r)
             sv = line.sim.control({"op": "get", "addr": 1, "reg": "SV"})
         finally:
@@ -354,6 +370,13 @@ def report(rows, args, sv) -> None:
              f"echoed request, {r['collisions']} collisions" for r in rows
              if r["retries"] or r["no_request"] or r["collisions"]]
     print("\n" + ("; ".join(extra) + "." if extra else "No retries, no collisions, every Done has its echoed request."))
+    for r in rows:
+        if r["unanswered"] or r["sim_notes"]:
+            rx, tx, req, rep, full = r["counts"]
+            print(f"{r['period']}/{r['ms']} ms: requests without a reply on the wire: "
+                  f"{'; '.join(r['unanswered']) or 'none'}; the simulator's notes on frames it received: "
+                  f"{'; '.join(r['sim_notes']) or 'none'}; requests on the wire {req}, frames the simulator "
+                  f"received {rx}; replies it sent {tx}, on the wire {rep}{' (its log was full)' if full else ''}.")
     print("Quickest Done in the first scan after its reply (that scan started this long after the "
           "reply's end): " + ", ".join(f"{r['period']}/{r['ms']} ms {min(r['lag0_us'], default=float('nan')):.0f} us"
                                        for r in rows) + ".")
