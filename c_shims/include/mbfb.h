@@ -237,7 +237,8 @@ typedef struct mbfb_bus_diag_s { /* tag differs from the function (C++ -Wshadow)
     uint32_t transactions;    /* requests put on the wire (every attempt)               */
     uint32_t busy_permille;   /* line in use (request, turnaround, reply, gaps owed) over
                                  the last second, 0..1000, as the worker keeps it (after
-                                 every attempt; every 100 ms while idle)                */
+                                 each attempt and when it goes idle; 0 a second after the
+                                 last attempt)                                          */
     uint32_t plans;           /* plans running                                          */
     uint32_t stray_bytes;     /* as mbfb_diag_t                                         */
 } mbfb_bus_diag_t;

@@ -271,9 +271,9 @@ typedef struct mbfb_bus {
     uint32_t busy_epoch[MBFB_BUSY_BUCKETS]; /* atomic: 100 ms period of the bucket */
     uint32_t busy_us[MBFB_BUSY_BUCKETS];    /* atomic: line busy in that period   */
     uint32_t busy_permille;  /* atomic: the buckets of the last second summed, 0..1000;
-                                kept by the worker (after each attempt, and every 100 ms
-                                while the window still holds busy time), so the scan
-                                reads it with one load (mbfb_dev_diag, mbfb_bus_diag) */
+                                kept by the worker (after each attempt, when it goes idle,
+                                and once when the window empties), so the scan reads it
+                                with one load (mbfb_dev_diag, mbfb_bus_diag)          */
     int stop;                /* atomic: worker exits                              */
     uint32_t post_seq;       /* atomic: next sequence number                      */
     sem_t wake;              /* posted by mbfb_post / mbfb_plan_set               */

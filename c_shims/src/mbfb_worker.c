@@ -50,18 +50,24 @@ static void count_failure(mbfb_dev_t *dev, int err)
 }
 
 /* Sum the 100 ms buckets of the second before `now` into bus->busy_permille (what the
- * scan reads: one load). Returns the busy microseconds still in the window: while it is
- * not 0 the idle worker wakes every 100 ms to slide the window (worker loop), so the
- * value falls to 0 within a second of the line going quiet. */
-static uint32_t busy_update(mbfb_bus_t *bus, int64_t now)
+ * scan reads: one load). Returns when the window will hold no busy time any more (the
+ * newest busy bucket leaves it), or INT64_MAX when it holds none now: the idle worker
+ * wakes then once to store 0 (worker loop), so a quiet line reads 0 a second after its
+ * last attempt without a wake per bucket. */
+static int64_t busy_update(mbfb_bus_t *bus, int64_t now)
 {
-    uint32_t epoch = (uint32_t)(now / 100000), busy = 0;
-    for (int i = 0; i < MBFB_BUSY_BUCKETS; i++)
-        if (epoch - __atomic_load_n(&bus->busy_epoch[i], __ATOMIC_RELAXED) < MBFB_BUSY_BUCKETS)
-            busy += __atomic_load_n(&bus->busy_us[i], __ATOMIC_RELAXED);
+    uint32_t epoch = (uint32_t)(now / 100000), busy = 0, age = MBFB_BUSY_BUCKETS;
+    for (int i = 0; i < MBFB_BUSY_BUCKETS; i++) {
+        uint32_t a = epoch - __atomic_load_n(&bus->busy_epoch[i], __ATOMIC_RELAXED);
+        uint32_t us = __atomic_load_n(&bus->busy_us[i], __ATOMIC_RELAXED);
+        if (a < MBFB_BUSY_BUCKETS && us > 0) {
+            busy += us;
+            age = a < age ? a : age; /* the newest busy bucket */
+        }
+    }
     __atomic_store_n(&bus->busy_permille, busy / 1000 > 1000 ? 1000u : busy / 1000,
                      __ATOMIC_RELAXED);
-    return busy;
+    return busy == 0 ? INT64_MAX : (now / 100000 - age + MBFB_BUSY_BUCKETS) * 100000;
 }
 
 /* Account `us` of line time in the 100 ms bucket of now (busy_permille). */
@@ -691,7 +697,7 @@ void *mbfb_worker_main(void *arg)
 
     while (!__atomic_load_n(&bus->stop, __ATOMIC_ACQUIRE)) {
         mbfb_plan_t *p;
-        int64_t wake_at, now;
+        int64_t wake_at, now, empty_at;
         while (sem_trywait(&bus->wake) == 0) { /* the checks below see every post */
         }
         if (run_posted(bus))
@@ -702,10 +708,10 @@ void *mbfb_worker_main(void *arg)
             run_refresh(bus, p);
             continue;
         }
-        /* idle: busy_permille falls as the window slides (at most 11 wakes after the
-         * last attempt, none once it is 0) */
-        if (busy_update(bus, now) != 0 && (now / 100000 + 1) * 100000 < wake_at)
-            wake_at = (now / 100000 + 1) * 100000;
+        /* idle: busy_permille as of now, and one wake when the window empties */
+        empty_at = busy_update(bus, now);
+        if (empty_at < wake_at)
+            wake_at = empty_at;
         sleep_until(bus, wake_at);
     }
     if (bus->fd >= 0)
