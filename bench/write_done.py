@@ -1,6 +1,6 @@
 """Write Done: does a write's Done come in the first scan after its reply? (issue 10, Done when)
 
-    .venv/bin/python bench/write_done.py                  # 4 cases x 30 s: about 5 min here
+    .venv/bin/python bench/write_done.py                  # 4 cases x 30 s: about 4.5 min here
     .venv/bin/python bench/write_done.py --seconds 10 --intervals 20
 
 Not a test: it prints figures (bench/README.md, "Write Done"). One MV-D94 (TempCtrl_MVD94) at
@@ -171,19 +171,19 @@ def analyse(line: wp.Line, host: dict, probes: list[tuple[int, int, bytes, int, 
         if d.startswith("M>S") and len(b) == 8 and b[0] == 1 and b[1] == 6 and b[2:4] == b"\0\0":
             nxt = fr[i + 1] if i + 1 < len(fr) else None
             echo = nxt is not None and nxt[1] == "S>M" and nxt[2] == b
-            reqs.append({"i": i, "t": t * 1000, "end": (t + 0) * 1000 + len(b) * char_ns, "val": b[4] << 8 | b[5],
+            reqs.append({"i": i, "t": t * 1000, "val": b[4] << 8 | b[5],
                          "reply_end": (nxt[0] * 1000 + len(nxt[2]) * char_ns) if nxt and nxt[1] == "S>M" else None,
                          "echo": echo})
-    # pair each write with its request(s), in order; requests of a value after the previous
-    # write's last one
+    # pair each write with its request(s) (the same value again: the shims sent it again), in
+    # order, from after the previous write's last one
     ri = 0
     for w in writes:
         w["reqs"] = []
-        while ri < len(reqs) and reqs[ri]["val"] != w["tag"]:
-            ri += 1
-        while ri < len(reqs) and reqs[ri]["val"] == w["tag"]:
-            w["reqs"].append(reqs[ri])
-            ri += 1
+        j = next((j for j in range(ri, len(reqs)) if reqs[j]["val"] == w["tag"]), None)
+        while j is not None and j < len(reqs) and reqs[j]["val"] == w["tag"]:   # a write not sent: none
+            w["reqs"].append(reqs[j])
+            j += 1
+            ri = j
     for w in writes:                   # causality: a request starts after the scan that posted it
         if w["reqs"]:
             lo = max(lo, scan[w["exec"]] - w["reqs"][0]["t"])
@@ -200,7 +200,7 @@ def analyse(line: wp.Line, host: dict, probes: list[tuple[int, int, bytes, int, 
     res = {"t0_width_us": (hi - lo) / 1000 if lo > -float("inf") else float("nan"),
            "clock_bad": lo > hi, "n": len(measured), "no_done": 0, "errors": 0, "no_request": 0,
            "lag": [], "ambiguous": 0, "false_done": 0, "exec_req_scans": [], "exec_req_ms": [],
-           "exec_done_scans": [], "exec_done_ms": [], "retries": 0, "first_after_us": [],
+           "exec_done_scans": [], "exec_done_ms": [], "retries": 0,
            "late": [], "reply_to_done_ms": [], "retried": [], "lag0_us": []}
     mid = (lo + hi) / 2
     for w in measured:
@@ -227,8 +227,6 @@ def analyse(line: wp.Line, host: dict, probes: list[tuple[int, int, bytes, int, 
         res["lag"].append(m)
         reply_end = mid + w["good"]["reply_end"]
         first = next((scan[i] for i in range(w["exec"], len(scan)) if scan[i] > reply_end), None)
-        if first is not None:
-            res["first_after_us"].append((first - reply_end) / 1000)
         if m > 0:
             res["late"].append({"tag": w["tag"], "lag": m, "first_scan_after_reply_us":
                                 (first - reply_end) / 1000 if first is not None else None,
@@ -272,7 +270,7 @@ def main() -> int:
     ap.add_argument("--every", type=int, default=3, help="scans from one write's end to the next Execute")
     ap.add_argument("--tail", type=float, default=1.0,
                     help="writes raised in the window's last TAIL s are not counted (may still be running)")
-    ap.add_argument("--keep", metavar="DIR", help="keep ptyline's frame log and the host's JSON lines there")
+    ap.add_argument("--keep", metavar="DIR", help="keep ptyline's frame log, the host's JSON lines and the simulator's logs there")
     args = ap.parse_args()
     try:
         intervals = [int(x) for x in args.intervals.split(",") if x]
