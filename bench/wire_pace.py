@@ -90,7 +90,8 @@ def cache_value(build: str, key: str) -> str | None:
 class Variant:
     """One version of the code: its sources (a commit's or the working tree), built in work."""
 
-    def __init__(self, name: str, ref: str, work: str):
+    def __init__(self, name: str, ref: str, work: str, build_type: str = "RelWithDebInfo"):
+        """build_type: the shims' CMAKE_BUILD_TYPE (bench/scan_cost.py: Debug, i.e. -O0, as OpenPLC)."""
         self.name, self.ref = name, ref
         self.dir = os.path.join(work, name)
         os.makedirs(self.dir)
@@ -106,7 +107,7 @@ class Variant:
         self.build = os.path.join(self.dir, "build")
         log(f"[{name}] building {ref} (shims, ptyline) ...")
         run(["cmake", "-S", self.src, "-B", self.build, "-G", "Ninja",
-             "-DCMAKE_BUILD_TYPE=RelWithDebInfo"])
+             f"-DCMAKE_BUILD_TYPE={build_type}"])
         run(["cmake", "--build", self.build, "-j2", "--target", "mbfb", "mbfb-ptyline"])
         # OpenPLC's iec2c, its ST library and its C headers: programs are built as OpenPLC does
         self.home = (cache_value(self.build, "OPENPLC_HOME") or os.environ.get("OPENPLC_HOME")
@@ -159,14 +160,14 @@ END_CONFIGURATION
 """
 
 
-def device_program(block: str, port: str, baud: int, fmt: str) -> str:
+def device_program(block: str, port: str, baud: int, fmt: str, period: str = "T#0s") -> str:
     return f"""
 PROGRAM main
   VAR
     l : MB_LINE := (Baud := {baud}, Parity := 'N', StopBits := {fmt[2]});
     dev : {block};
   END_VAR
-  dev(Enable := TRUE, Port := '{port}', SlaveId := 1, Line := l, Period := T#0s);
+  dev(Enable := TRUE, Port := '{port}', SlaveId := 1, Line := l, Period := {period});
   IF dev.Valid AND dev.Age = T#0s THEN {{{{ wp_pub(0); }}}} END_IF;
 END_PROGRAM
 """ + CONFIG
