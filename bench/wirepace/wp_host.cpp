@@ -148,9 +148,9 @@ int main(int argc, char **argv) {
         }
         if (g_measuring && a - w0 >= seconds) break;
         g_scan = (long)starts.size();
-        starts.push_back(an);
         config_run__(tick++);
         double b = now_s();
+        starts.push_back(an);              // outside the timed part
         __CURRENT_TIME.tv_nsec += (long)common_ticktime__;   // updateTime() of OpenPLC
         while (__CURRENT_TIME.tv_nsec >= 1000000000L) {
             __CURRENT_TIME.tv_nsec -= 1000000000L;
