@@ -49,6 +49,16 @@ def rtu_request_length(buf: bytes) -> int | None:
     return size or None
 
 
+def rtu_length_pending(buf: bytes) -> bool:
+    """True when rtu_request_length(buf) is None only because buf is too short to tell: the
+    address alone, or a known function whose length field has not arrived (FC16's byte count)."""
+    if len(buf) < 2:
+        return True
+    if buf[1] & 0x80 or _server_decoder.lookupPduClass(buf) is None:
+        return False
+    return rtu_request_length(buf) is None
+
+
 def encode_rtu(addr: int, pdu: bytes) -> bytes:
     """RTU frame with a real CRC (used for replies in rtu and nocrc modes)."""
     frame = bytes([addr]) + pdu

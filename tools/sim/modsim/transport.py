@@ -190,8 +190,13 @@ class SerialLine:
         loop = asyncio.get_running_loop()
         need = frames.rtu_request_length(bytes(self.buf)) if self.line.framing != "ascii" else None
         short = need is not None and len(self.buf) < need
+        # Too few bytes yet to know the length (address alone, or an FC16 header before its byte
+        # count): as short. A pty line (ptyline) stalled by the scheduler after the first byte
+        # otherwise cut a good request in two: "short frame", then "bad CRC", and no reply.
+        if need is None and self.line.framing != "ascii" and frames.rtu_length_pending(bytes(self.buf)):
+            short = True
         # RTU-without-CRC: a frame that simply omits the two CRC bytes is accepted too.
-        if short and self.line.framing == "nocrc" and len(self.buf) == need - 2:
+        if short and need is not None and self.line.framing == "nocrc" and len(self.buf) == need - 2:
             frame = bytes(self.buf) + b"\0\0"
             self.buf.clear()
             self._frame(frame)
