@@ -479,6 +479,7 @@ static void no_port(void)
  * publications shows it in one of them. Under the TSan flavour this is also the data
  * race check of the handover. */
 #define HO_SNAPS 200000u
+static int ho_done; /* atomic: the producer has published its last snapshot */
 static uint32_t ho_words(uint32_t k) { return 1u + k % MBFB_PLAN_MAX_WORDS; }
 
 static void *ho_producer(void *arg)
@@ -490,6 +491,7 @@ static void *ho_producer(void *arg)
             w[i] = (uint16_t)(k * 31u + i);
         mbfb_plan_publish(p, (int)k, 3u * k, k & 15u, w, (int)ho_words(k));
     }
+    __atomic_store_n(&ho_done, 1, __ATOMIC_RELEASE);
     return NULL;
 }
 
@@ -512,9 +514,11 @@ static void handover(void)
     CHECK_EQ(mbfb_plan_take(plan, &seq, &s), 0); /* nothing published yet */
     CHECK_EQ(s.words[0], 0xEEEE);                /* and nothing copied */
     CHECK_EQ(pthread_create(&th, NULL, ho_producer, p), 0);
-    while (last < HO_SNAPS) {
-        uint32_t pub = __atomic_load_n(&p->pub, __ATOMIC_ACQUIRE), k, n;
+    for (int fin = 0; !fin;) { /* until a take that began after the last publication */
+        uint32_t pub, k, n;
         int rc;
+        fin = __atomic_load_n(&ho_done, __ATOMIC_ACQUIRE);
+        pub = __atomic_load_n(&p->pub, __ATOMIC_ACQUIRE);
         memset(s.words, 0xEE, sizeof s.words);
         rc = mbfb_plan_take(plan, &seq, &s);
         if (rc == 0) {
