@@ -142,10 +142,12 @@ int mbfb_plan_invalidate(int plan)
  * (one exchange) and copy it, which only this caller owns now, with memcpy. */
 int mbfb_plan_take(int plan, uint32_t *seq, mbfb_snap_t *out)
 {
-    mbfb_plan_t *p = plan_of(plan);
+    mbfb_plan_t *p;
     const mbfb_snapbuf_t *b;
 
-    if (p == NULL || seq == NULL || out == NULL)
+    /* plan_of written out: a call costs at -O0, as OpenPLC builds the shims */
+    if (plan < 0 || plan >= MBFB_MAX_PLANS || seq == NULL || out == NULL ||
+        (p = __atomic_load_n(&mbfb_plans[plan], __ATOMIC_ACQUIRE)) == NULL)
         return -MBFB_E_BADHANDLE;
     /* relaxed: the exchange below is what orders the buffer's contents */
     if (__atomic_load_n(&p->mid, __ATOMIC_RELAXED) & MBFB_SNAP_FRESH)
