@@ -151,7 +151,10 @@ int mbfb_post_write(int dev, int fc, int addr, int count, const uint16_t *values
  * allows, shared fairly with the bus's other plans), and publishes each finished refresh
  * as one snapshot. Posted requests (writes) go before the next read of any plan.
  * Scan side: mbfb_plan_take costs one atomic load when nothing is new; no system call,
- * no lock, no allocation. mbfb_plan_set / _stop / _invalidate are scan-safe too. */
+ * no lock, no allocation. mbfb_plan_set / _stop / _invalidate are scan-safe too.
+ * One consumer per plan: a plan's snapshots are handed over in a triple buffer whose
+ * reading end mbfb_plan_take holds, so call it for one plan from one thread at a time
+ * (the block that opened the plan); other plans, devices and buses are independent. */
 #define MBFB_PLAN_MAX_ITEMS 4   /* reads per refresh                                   */
 #define MBFB_PLAN_MAX_WORDS 125 /* all items' words together (one IEC MB_REGS)         */
 #define MBFB_TIER_EVERY 0       /* read in every refresh                               */
@@ -196,8 +199,11 @@ int mbfb_plan_stop(int plan);
  *  or a negative error. */
 int mbfb_plan_invalidate(int plan);
 
-/** If a refresh newer than *seq has finished, copy it into *out, set *seq to its number
- *  and return 1; return 0 when nothing is new (one atomic load); or a negative error. */
+/** If a refresh newer than *seq has finished, copy the newest one into *out (its header
+ *  and its items' words; words past them are left as they were), set *seq to its number
+ *  and return 1; return 0 when nothing is new (one atomic load); or a negative error.
+ *  A copy is always one whole refresh: the buffer copied belongs to the caller until its
+ *  next take (the worker writes only buffers no take holds). */
 int mbfb_plan_take(int plan, uint32_t *seq, mbfb_snap_t *out);
 
 /** Per-device diagnostics. */

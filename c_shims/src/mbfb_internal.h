@@ -212,18 +212,19 @@ typedef struct mbfb_dev {
 /* ---- plans ------------------------------------------------------------------
  * Settings are written by the scan (mbfb_plan_set) field by field with __atomic
  * stores inside a sequence lock (cfg_seq odd while writing) and copied by the worker
- * at the start of a refresh. Snapshots go the other way in a double buffer: the
- * worker fills buf[seq & 1], each buffer carries the sequence number it holds
- * (0 while being written), so the scan copies without a lock and retries a torn copy.
- * Words are kept as 64-bit atoms: 32 loads copy a whole snapshot. */
-#define MBFB_SNAP_ATOMS ((MBFB_PLAN_MAX_WORDS + 3) / 4)
+ * at the start of a refresh. Snapshots go the other way in a triple buffer with one
+ * producer (the worker) and one consumer (the block that owns the plan): at any time
+ * the worker owns buf[back], the scan owns buf[front], and buf[mid & 3] is the one in
+ * between. The worker fills its buffer with plain stores and swaps it with the middle
+ * one (atomic exchange, acq_rel, MBFB_SNAP_FRESH set); the scan swaps its buffer with
+ * the middle one only when FRESH is set and then copies the buffer it owns with
+ * memcpy. A buffer is written only by the thread that owns it and handed over by an
+ * acq_rel exchange, so there is no data race (C11) and no copy can be torn. */
+#define MBFB_SNAP_FRESH 4u  /* in mid: the middle buffer holds a snapshot not taken yet */
 
 typedef struct mbfb_snapbuf {
-    uint32_t seq;            /* atomic: refresh number held, 0 while written       */
-    int32_t result;
-    uint32_t gen, read_mask;
-    uint64_t atoms[MBFB_SNAP_ATOMS]; /* words, 4 per atom, little-endian order in
-                                        memory as mbfb_snap_t.words                 */
+    mbfb_snap_t snap;        /* plain: owned by whoever holds the buffer's index   */
+    int nwords;              /* words[0..nwords) written (the items' words)       */
 } mbfb_snapbuf_t;
 
 typedef struct mbfb_plan {
@@ -244,9 +245,13 @@ typedef struct mbfb_plan {
                                 (the first, or one for an invalidation), 0 = none: the
                                 slow tier stays due until a take reaches it          */
     uint32_t seq;            /* refreshes published                               */
+    int back;                /* worker only: the buffer it fills next (0..2)      */
     /* snapshots */
-    uint32_t pub;            /* atomic: number of the newest published refresh      */
-    mbfb_snapbuf_t buf[2];
+    uint32_t pub;            /* atomic: number of the newest published refresh (for
+                                benchmarks and tests; the scan reads mid)           */
+    uint32_t mid;            /* atomic: index of the middle buffer | MBFB_SNAP_FRESH */
+    int front;               /* consumer only: the buffer mbfb_plan_take holds     */
+    mbfb_snapbuf_t buf[3];
 } mbfb_plan_t;
 
 /* ---- bus ----------------------------------------------------------------- */

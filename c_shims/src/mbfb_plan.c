@@ -3,10 +3,10 @@
  * the worker's side of the settings and snapshots.
  *
  * Lock-free both ways (see mbfb_internal.h, "plans"): settings in a sequence lock the
- * scan writes and the worker copies; snapshots in a double buffer the worker writes and
- * the scan copies, retrying a copy the worker overwrote meanwhile. Every shared field
- * is accessed with __atomic builtins, so the code is the
- * same in C and C++ and ThreadSanitizer sees no plain data race.
+ * scan writes and the worker copies (every field accessed with __atomic builtins);
+ * snapshots in a single-producer single-consumer triple buffer: each side writes or
+ * copies only a buffer it owns (plain memcpy) and hands buffers over with one atomic
+ * exchange. The code is the same in C and C++ and ThreadSanitizer sees no data race.
  */
 #include <stdlib.h>
 #include <string.h>
@@ -51,6 +51,9 @@ int mbfb_plan_open(int dev)
             break;
         p->dev = dev;
         p->bus = d->bus;
+        p->front = 0; /* triple buffer: the scan holds 0, 1 is in the middle, */
+        p->mid = 1;   /* the worker fills 2 (all seq 0: nothing yet)          */
+        p->back = 2;
         __atomic_store_n(&b->plans[n], p, __ATOMIC_RELEASE);
         __atomic_store_n(&b->n_plans, n + 1, __ATOMIC_RELEASE);
         __atomic_store_n(&mbfb_plans[i], p, __ATOMIC_RELEASE);
@@ -135,43 +138,26 @@ int mbfb_plan_invalidate(int plan)
     return (int)((__atomic_add_fetch(&p->inval_gen, 1u, __ATOMIC_ACQ_REL)) & 0x7FFFFFFFu);
 }
 
-/* One atomic load when nothing is new; else copy the newest snapshot, again if the
- * worker overwrote it meanwhile. */
+/* Nothing new: one atomic load and a compare. A new snapshot: take the middle buffer
+ * (one exchange) and copy it, which only this caller owns now, with memcpy. */
 int mbfb_plan_take(int plan, uint32_t *seq, mbfb_snap_t *out)
 {
-    mbfb_plan_t *p = plan_of(plan);
-    uint32_t s;
+    mbfb_plan_t *p;
+    const mbfb_snapbuf_t *b;
 
-    if (p == NULL || seq == NULL || out == NULL)
+    /* plan_of written out: a call costs at -O0, as OpenPLC builds the shims */
+    if (plan < 0 || plan >= MBFB_MAX_PLANS || seq == NULL || out == NULL ||
+        (p = __atomic_load_n(&mbfb_plans[plan], __ATOMIC_ACQUIRE)) == NULL)
         return -MBFB_E_BADHANDLE;
-    s = __atomic_load_n(&p->pub, __ATOMIC_ACQUIRE);
-    if (s == *seq)
-        return 0; /* nothing new: one atomic load */
-    for (;;) {
-        const mbfb_snapbuf_t *b = &p->buf[s & 1];
-        int atoms = (int)LD(&b->read_mask) >> 16; /* atoms used: high half, see publish */
-        out->result = LD(&b->result);
-        out->gen = LD(&b->gen);
-        out->read_mask = LD(&b->read_mask) & 0xFFFFu;
-        if (atoms > MBFB_SNAP_ATOMS)
-            atoms = MBFB_SNAP_ATOMS; /* torn: retried below */
-        for (int i = 0; i < atoms - 1; i++) { /* whole atoms: an 8-byte move each */
-            uint64_t a = LD(&b->atoms[i]);
-            memcpy(&out->words[4 * i], &a, sizeof a);
-        }
-        if (atoms > 0) { /* the last one: words[] ends at 125 */
-            uint64_t a = LD(&b->atoms[atoms - 1]);
-            int w = 4 * (atoms - 1);
-            memcpy(&out->words[w], &a,
-                   (size_t)(MBFB_PLAN_MAX_WORDS - w < 4 ? MBFB_PLAN_MAX_WORDS - w : 4) * 2);
-        }
-        if (LD(&b->seq) == s)
-            break;
-        s = __atomic_load_n(&p->pub, __ATOMIC_ACQUIRE); /* overwritten meanwhile: again */
-    }
-    out->seq = s;
-    *seq = s;
-    __atomic_store_n(&p->taken, s, __ATOMIC_RELEASE); /* the worker's slow_owed */
+    /* relaxed: the exchange below is what orders the buffer's contents */
+    if (__atomic_load_n(&p->mid, __ATOMIC_RELAXED) & MBFB_SNAP_FRESH)
+        p->front = (int)(__atomic_exchange_n(&p->mid, (uint32_t)p->front, __ATOMIC_ACQ_REL) & 3u);
+    b = &p->buf[p->front];
+    if (b->snap.seq == *seq)
+        return 0; /* nothing newer than the caller's */
+    memcpy(out, &b->snap, offsetof(mbfb_snap_t, words) + (size_t)b->nwords * sizeof out->words[0]);
+    *seq = b->snap.seq;
+    __atomic_store_n(&p->taken, b->snap.seq, __ATOMIC_RELEASE); /* the worker's slow_owed */
     return 1;
 }
 
@@ -202,29 +188,30 @@ int mbfb_plan_read_cfg(mbfb_plan_t *p, mbfb_plan_item_t *items, int *n, int *per
     return running && *n > 0;
 }
 
-/* Fill the buffer the readers are not told about, then publish it. The number of
- * 64-bit atoms used rides in read_mask's high half (items use bits 0..3). */
+/* Fill the buffer the worker owns (plain stores: nobody else can hold it), then swap
+ * it with the middle one; the buffer it gets back is the next one to fill (never the
+ * one the scan holds). A snapshot the scan has not taken is replaced by the newer. */
 void mbfb_plan_publish(mbfb_plan_t *p, int result, uint32_t gen, uint32_t read_mask,
                        const uint16_t *words, int nwords)
 {
     uint32_t s = p->seq + 1;
-    mbfb_snapbuf_t *b;
-    int atoms = (nwords + 3) / 4;
+    mbfb_snapbuf_t *b = &p->buf[p->back];
 
     if (s == 0)
         s = 1; /* 0 means "none yet" */
-    b = &p->buf[s & 1];
-    __atomic_exchange_n(&b->seq, 0u, __ATOMIC_ACQ_REL); /* the stores below stay after */
-    ST(&b->result, (int32_t)result);
-    ST(&b->gen, gen);
-    ST(&b->read_mask, (read_mask & 0xFFFFu) | ((uint32_t)atoms << 16));
-    for (int i = 0; i < atoms; i++) {
-        uint64_t a = 0;
-        int w = 4 * i, k = nwords - w < 4 ? nwords - w : 4;
-        memcpy(&a, &words[w], (size_t)k * sizeof words[0]);
-        ST(&b->atoms[i], a);
-    }
-    __atomic_store_n(&b->seq, s, __ATOMIC_RELEASE);
+    b->snap.seq = s;
+    b->snap.result = (int32_t)result;
+    b->snap.gen = gen;
+    b->snap.read_mask = read_mask;
+    if (nwords < 0)
+        nwords = 0;
+    if (nwords > MBFB_PLAN_MAX_WORDS)
+        nwords = MBFB_PLAN_MAX_WORDS;
+    if (nwords > 0)
+        memcpy(b->snap.words, words, (size_t)nwords * sizeof words[0]);
+    b->nwords = nwords;
+    p->back = (int)(__atomic_exchange_n(&p->mid, (uint32_t)p->back | MBFB_SNAP_FRESH,
+                                        __ATOMIC_ACQ_REL) & 3u);
     __atomic_store_n(&p->pub, s, __ATOMIC_RELEASE);
     p->seq = s;
 }

@@ -14,6 +14,11 @@
  *              the window (a second), without moving diag_seq
  *   no port    a port that cannot be opened fails every plan of the bus in one pass
  *              (by snapshot numbers), and is tried again every probe interval only
+ *   handover   the snapshot triple buffer under a producer that publishes as fast as it
+ *              can: every snapshot taken is whole (all its fields and words from one
+ *              publication, never mixed), numbers only go up, a take never returns an
+ *              older snapshot than one published before it (not stale), words past the
+ *              snapshot's items are left as they were
  */
 #include <string.h>
 
@@ -392,20 +397,16 @@ static void refresh_diag(void)
 static mbfb_backend_t np_be;
 static int np_plan[NP_PLANS];
 static int np_tries;                          /* atomic: open() calls            */
-static uint32_t np_seq[NP_TRIES][NP_PLANS];   /* worker: snapshots seen at try k */
-static uint32_t np_latest[NP_PLANS];          /* worker: its own take cursors    */
+static uint32_t np_seq[NP_TRIES][NP_PLANS];   /* worker: snapshots published at try k */
 
+/* The worker's own count of published snapshots (p->pub), not a take: a plan has one
+ * consumer (mbfb_plan_take is not to be called from two threads), the test's thread. */
 static int np_open(struct mbfb_bus *bus)
 {
     int k = __atomic_load_n(&np_tries, __ATOMIC_RELAXED);
-    if (k < NP_TRIES) {
-        for (int i = 0; i < NP_PLANS; i++) {
-            mbfb_snap_t s;
-            while (mbfb_plan_take(np_plan[i], &np_latest[i], &s) == 1) {
-            }
-            np_seq[k][i] = np_latest[i];
-        }
-    }
+    if (k < NP_TRIES)
+        for (int i = 0; i < NP_PLANS; i++)
+            np_seq[k][i] = __atomic_load_n(&mbfb_plans[np_plan[i]]->pub, __ATOMIC_ACQUIRE);
     __atomic_store_n(&np_tries, k + 1, __ATOMIC_RELEASE);
     return mbfb_backend_rtu.open(bus);
 }
@@ -471,9 +472,90 @@ static void no_port(void)
     CHECK(tries <= 2 + (int)((t_now_us() - t0) / (MBFB_PROBE_FIRST_MS * 1000)));
 }
 
+/* The snapshot handover (mbfb_plan_publish, worker side; mbfb_plan_take, scan side),
+ * with this test's thread as the producer in place of the worker (the plan is never
+ * started, so the bus's worker never publishes on it). Snapshot k: result k, gen 3k,
+ * read_mask k & 15, nwords 1 + k % 125, word i = k * 31 + i; a take that mixed two
+ * publications shows it in one of them. Under the TSan flavour this is also the data
+ * race check of the handover. */
+#define HO_SNAPS 200000u
+static int ho_done; /* atomic: the producer has published its last snapshot */
+static uint32_t ho_words(uint32_t k) { return 1u + k % MBFB_PLAN_MAX_WORDS; }
+
+static void *ho_producer(void *arg)
+{
+    mbfb_plan_t *p = (mbfb_plan_t *)arg;
+    uint16_t w[MBFB_PLAN_MAX_WORDS];
+    for (uint32_t k = 1; k <= HO_SNAPS; k++) {
+        for (uint32_t i = 0; i < ho_words(k); i++)
+            w[i] = (uint16_t)(k * 31u + i);
+        mbfb_plan_publish(p, (int)k, 3u * k, k & 15u, w, (int)ho_words(k));
+    }
+    __atomic_store_n(&ho_done, 1, __ATOMIC_RELEASE);
+    return NULL;
+}
+
+static void handover(void)
+{
+    mbfb_bus_config_t c = t_cfg("/nonexistent/ttyPLAN1", 9600, MBFB_FRAMING_RTU, 0, -1);
+    mbfb_snap_t s;
+    uint32_t seq = 0, last = 0, bad = 0, stale = 0, takes = 0, none = 0;
+    pthread_t th;
+    mbfb_plan_t *p;
+    int plan;
+
+    t_scenario = "handover";
+    plan = mbfb_plan_open(mbfb_dev_open(mbfb_bus_open(&c), 1));
+    CHECK(plan >= 0);
+    if (plan < 0)
+        return;
+    p = mbfb_plans[plan];
+    memset(&s, 0xEE, sizeof s);
+    CHECK_EQ(mbfb_plan_take(plan, &seq, &s), 0); /* nothing published yet */
+    CHECK_EQ(s.words[0], 0xEEEE);                /* and nothing copied */
+    CHECK_EQ(pthread_create(&th, NULL, ho_producer, p), 0);
+    for (int fin = 0; !fin;) { /* until a take that began after the last publication */
+        uint32_t pub, k, n;
+        int rc;
+        fin = __atomic_load_n(&ho_done, __ATOMIC_ACQUIRE);
+        pub = __atomic_load_n(&p->pub, __ATOMIC_ACQUIRE);
+        memset(s.words, 0xEE, sizeof s.words);
+        rc = mbfb_plan_take(plan, &seq, &s);
+        if (rc == 0) {
+            none++;
+            stale += seq < pub; /* published before this take, not delivered */
+            continue;
+        }
+        CHECK_EQ(rc, 1);
+        takes++;
+        k = s.seq;
+        n = ho_words(k);
+        stale += k < pub;
+        if (k <= last || seq != k)
+            bad++;
+        if (s.result != (int32_t)k || s.gen != 3u * k || s.read_mask != (k & 15u))
+            bad++;
+        for (uint32_t i = 0; i < n; i++)
+            bad += s.words[i] != (uint16_t)(k * 31u + i);
+        for (uint32_t i = n; i < MBFB_PLAN_MAX_WORDS; i++) /* past the items: untouched, */
+            bad += s.words[i] != 0xEEEE; /* no word of an older, longer snapshot */
+        last = k;
+    }
+    pthread_join(th, NULL);
+    CHECK_EQ(bad, 0u);
+    CHECK_EQ(stale, 0u);
+    CHECK_EQ(last, HO_SNAPS);
+    CHECK(takes >= 2); /* taken while the producer ran, not only its last one */
+    CHECK_EQ(mbfb_plan_take(plan, &seq, &s), 0); /* all taken: nothing new */
+    printf("handover: %u snapshots published, %u taken, %u takes with nothing new\n",
+           HO_SNAPS, takes, none);
+    mbfb_shutdown();
+}
+
 int main(void)
 {
     no_port();
+    handover();
     snapshot();
     tiers();
     slow_owed();
