@@ -37,56 +37,51 @@ def die(msg):
     sys.exit(2)
 
 
-def strip_comments(s):
-    """Blank ST comments, keeping offsets (so line numbers stay right). matiec's rule: a
-    comment ends at the first *) (no nesting), and {{ }} pragmas and strings hold none."""
-    out, i, n = list(s), 0, len(s)
+def st_spans(s):
+    """Split ST source into (kind, start, end) spans, kind 'pragma' ({{ }}), 'string', 'comment'
+    or 'code' (one character). matiec's rule: a comment ends at the first *) (no nesting), and
+    {{ }} pragmas and strings hold none."""
+    i, n = 0, len(s)
     while i < n:
         if s.startswith("{{", i):
             j = s.find("}}", i)
-            i = n if j < 0 else j + 2
+            j, kind = (n if j < 0 else j + 2), "pragma"
         elif s[i] == "'":
             j = i + 1
             while j < n and s[j] != "'":
                 j += 2 if s[j] == "$" else 1
-            i = j + 1
+            j, kind = j + 1, "string"
         elif s.startswith("(*", i):
             j = s.find("*)", i + 2)
-            j = n if j < 0 else j + 2
+            j, kind = (n if j < 0 else j + 2), "comment"
+        else:
+            j, kind = i + 1, "code"
+        yield kind, i, min(j, n)
+        i = j
+
+
+def strip_comments(s):
+    """Blank ST comments, keeping offsets (so line numbers stay right)."""
+    out = list(s)
+    for kind, i, j in st_spans(s):
+        if kind == "comment":
             for k in range(i, j):
                 if out[k] != "\n":
                     out[k] = " "
-            i = j
-        else:
-            i += 1
     return "".join(out)
 
 
 def unnest_comments(src, fname, notes):
     """G4: STruC++ nests comments (IEC 61131-3 ed. 3), matiec does not: a '(*' inside a
     comment would open a second level and swallow the code after the first '*)'."""
-    out, i, n, count = [], 0, len(src), 0
-    while i < n:
-        if src.startswith("{{", i):
-            j = src.find("}}", i)
-            j = n if j < 0 else j + 2
-        elif src[i] == "'":
-            j = i + 1
-            while j < n and src[j] != "'":
-                j += 2 if src[j] == "$" else 1
-            j += 1
-        elif src.startswith("(*", i):
-            j = src.find("*)", i + 2)
-            j = n if j < 0 else j + 2
+    out, count = [], 0
+    for kind, i, j in st_spans(src):
+        if kind == "comment":
             inner = src[i + 2:j - 2]
             count += inner.count("(*")
             out.append("(*" + inner.replace("(*", "( *") + src[j - 2:j])
-            i = j
-            continue
         else:
-            j = i + 1
-        out.append(src[i:j])
-        i = j
+            out.append(src[i:j])
     if count:
         notes.append(f"G4 {fname}: {count} '(*' inside a comment (matiec does not nest) -> '( *'")
     return "".join(out)

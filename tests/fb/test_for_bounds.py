@@ -12,8 +12,9 @@ import re
 import sys
 
 ROOT = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "..")
-COMMENT = re.compile(r"\(\*.*?\*\)", re.S)
-PRAGMA = re.compile(r"\{\{.*?\}\}", re.S)
+sys.path.insert(0, os.path.join(ROOT, "v4"))
+from translate import st_spans  # noqa: E402  (the project's ST lexer: comments, pragmas, strings)
+
 FOR = re.compile(r"\bFOR\s+\w+\s*:=\s*(.+?)\s+TO\s+(.+?)(?:\s+BY\s+(.+?))?\s+DO\b", re.S | re.I)
 CONSTANTS = re.compile(r"\bVAR(?:_GLOBAL)?\s+CONSTANT\b(.*?)\bEND_VAR\b", re.S | re.I)
 LITERAL = re.compile(r"-?\d+")
@@ -22,8 +23,9 @@ LITERAL = re.compile(r"-?\d+")
 def main() -> int:
     bad, loops = [], 0
     for path in sorted(glob.glob(os.path.join(ROOT, "st_src", "*.st"))):
-        keep_lines = lambda m: "\n" * m.group(0).count("\n")  # noqa: E731
-        text = PRAGMA.sub(keep_lines, COMMENT.sub(keep_lines, open(path, encoding="utf-8").read()))
+        src = open(path, encoding="utf-8").read()
+        text = "".join(src[i:j] if kind in ("code", "string") else "\n" * src.count("\n", i, j)
+                       for kind, i, j in st_spans(src))  # comments and pragmas out, lines kept
         names = {m.group(1).upper() for block in CONSTANTS.findall(text)
                  for m in re.finditer(r"(\w+)\s*:", block)}
         for m in FOR.finditer(text):
