@@ -46,6 +46,7 @@ import time
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import wire_pace as wp  # noqa: E402  (its Variant, Line, CONFIG, host_json, log)
+from modsim.frames import crc_bytes  # noqa: E402  (tools/sim, on the path through wire_pace)
 
 SV_BASE = 100              # set points written: SV_BASE + (k MOD 1000), raw counts at DP 0
 
@@ -85,15 +86,6 @@ END_PROGRAM
 """ + wp.CONFIG
 
 
-def crc16(data: bytes) -> bytes:
-    crc = 0xFFFF
-    for b in data:
-        crc ^= b
-        for _ in range(8):
-            crc = (crc >> 1) ^ 0xA001 if crc & 1 else crc >> 1
-    return bytes((crc & 0xFF, crc >> 8))
-
-
 def probe(line: wp.Line, first: int, reps: int = 5) -> list[tuple[int, int, bytes, int, int]]:
     """On the idle line, as its master: `reps` FC03 reads of 2 registers from 0x30 + first,
     0x31 + first, ... (words the blocks never read: each request is a unique frame) from the
@@ -108,7 +100,7 @@ def probe(line: wp.Line, first: int, reps: int = 5) -> list[tuple[int, int, byte
         for n in range(first, first + reps):
             a, c = 0x30 + n % 0x40, 2 + n // 0x40   # unique, inside the FC03 window 0..0x7D
             frame = bytes((1, 3, 0, a, 0, c))
-            frame += crc16(frame)
+            frame += crc_bytes(frame)
             got = b""
             tw = time.monotonic_ns()
             os.write(fd, frame)
