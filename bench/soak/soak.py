@@ -332,7 +332,7 @@ class Soak:
     def hold_pty(self):
         """Keep the simulator's current pty allocated while the soak runs.
 
-        The simulator's reopen_port leaves its --link naming the old pty during the down
+        The simulator's reopen_port leaves its --symlink naming the old pty during the down
         time; if another program on the machine (a test, another simulator) is given that
         pty number meanwhile, the shims reopening the link would talk to it. Holding the
         slave side open keeps the number from being reused (opening it then fails, as for a

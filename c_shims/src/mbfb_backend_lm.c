@@ -93,19 +93,11 @@ int mbfb_lm_serial_open(mbfb_bus_t *bus)
 static int tcp_open(mbfb_bus_t *bus)
 {
     char host[256];
-    const char *hp = bus->port + 6; /* after "tcp://" */
-    const char *colon = strrchr(hp, ':');
-    size_t n;
+    const char *service;
 
-    if (colon == NULL || (n = (size_t)(colon - hp)) == 0 || n >= sizeof host)
+    if (mbfb_tcp_split(bus->port, host, sizeof host, &service) != 0)
         return -MBFB_E_NOPORT;
-    memcpy(host, hp, n);
-    host[n] = 0;
-    if (host[0] == '[' && n > 2 && host[n - 1] == ']') { /* [::1] */
-        memmove(host, host + 1, n - 2);
-        host[n - 2] = 0;
-    }
-    return lm_connect(bus, modbus_new_tcp_pi(host, colon + 1));
+    return lm_connect(bus, modbus_new_tcp_pi(host, service));
 }
 
 /* Close the port and free the libmodbus context. */

@@ -42,7 +42,7 @@ static int start_worker(mbfb_bus_t *bus)
     return rc ? -1 : 0;
 }
 
-/* "tcp://..." ports are Modbus TCP. */
+/* "tcp://..." ports: Modbus TCP, or RTU over TCP with Framing RTU. */
 static int is_tcp(const char *port)
 {
     return strncmp(port, "tcp://", 6) == 0;
@@ -55,8 +55,9 @@ static int normalise(mbfb_bus_config_t *c)
         return MBFB_E_INVAL;
     if (c->framing < MBFB_FRAMING_RTU || c->framing > MBFB_FRAMING_TCP)
         return MBFB_E_INVAL;
-    /* tcp:// carries Modbus TCP only (libmodbus has no RTU-over-TCP) and vice versa */
-    if ((c->framing == MBFB_FRAMING_TCP) != is_tcp(c->port))
+    /* tcp:// carries Modbus TCP or RTU (over TCP); Modbus TCP needs tcp:// */
+    if (is_tcp(c->port) ? c->framing != MBFB_FRAMING_TCP && c->framing != MBFB_FRAMING_RTU
+                        : c->framing == MBFB_FRAMING_TCP)
         return MBFB_E_INVAL;
     if (c->retries < 0)
         c->retries = MBFB_DEFAULT_RETRIES;
@@ -75,7 +76,7 @@ static int normalise(mbfb_bus_config_t *c)
         (c->stop_bits != 1 && c->stop_bits != 2) ||
         (c->data_bits != 8 && !(c->data_bits == 7 && c->framing == MBFB_FRAMING_ASCII)))
         return MBFB_E_INVAL; /* RTU is binary: 8 data bits */
-    if (!mbfb_lm_baud_ok(c->baud))
+    if (!is_tcp(c->port) && !mbfb_lm_baud_ok(c->baud)) /* RTU over TCP: timing only */
         return MBFB_E_BAUD; /* libmodbus would run the port at 9600 instead */
     return 0;
 }
@@ -127,9 +128,11 @@ static int same_settings(const mbfb_bus_config_t *a, const mbfb_bus_config_t *b)
            a->response_timeout_ms == b->response_timeout_ms && a->retries == b->retries;
 }
 
-/* The backend table of a framing. */
-static const mbfb_backend_t *backend_for(int framing)
+/* The backend table of a framing on a port. */
+static const mbfb_backend_t *backend_for(int framing, const char *port)
 {
+    if (framing == MBFB_FRAMING_RTU && is_tcp(port))
+        return &mbfb_backend_rtutcp;
     switch (framing) {
     case MBFB_FRAMING_ASCII:     return &mbfb_backend_ascii;
     case MBFB_FRAMING_RTU_NOCRC: return &mbfb_backend_nocrc;
@@ -163,10 +166,12 @@ static int bus_create(int index, const mbfb_bus_config_t *c, const char *key)
     memcpy(bus->key, key, kn);
     bus->cfg = *c;
     bus->cfg.port = bus->port;
-    bus->be = backend_for(c->framing);
+    bus->be = backend_for(c->framing, c->port);
     mbfb_timing_init(&bus->timing, c->baud, c->parity, c->data_bits, c->stop_bits);
     if (c->framing == MBFB_FRAMING_TCP)
         bus->timing.gap_us = 0; /* the gateway paces its serial line */
+    else if (is_tcp(c->port))
+        bus->timing.net_us = MBFB_NET_ALLOWANCE_US; /* RTU over TCP: the network leg */
     bus->fd = -1;
     bus->index = index;
     slot_epoch += 4096; /* handles from before a shutdown stay stale */

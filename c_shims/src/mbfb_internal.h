@@ -10,6 +10,7 @@
 
 #include <pthread.h>
 #include <semaphore.h>
+#include <stddef.h>
 #include <stdint.h>
 #include <time.h>
 
@@ -51,6 +52,11 @@ extern "C" {
  * writes); 10 s is 100 times the worst, and longer than the simulator's and the
  * soak's 5 s late replies. */
 #define MBFB_LATE_MAX_MS     10000
+/* RTU over TCP (README "RTU over TCP"): the network leg and the gateway's own framing
+ * of its serial line, added to the response timeout the line's baud gives and to the
+ * time a started reply may take. A configured TimeoutMs replaces the whole timeout. */
+#define MBFB_NET_ALLOWANCE_US 100000
+#define MBFB_CONNECT_MS      1000 /* TCP connect of RTU over TCP; a stuck send          */
 
 /* ---- CRC / LRC / frames (mbfb_frame.c) --------------------------------------
  * A "frame" here is slave id + PDU, without CRC, LRC or MBAP header: the backends
@@ -80,6 +86,7 @@ typedef struct mbfb_timing {
     int char_us;      /* one character on the line                              */
     int gap_us;       /* silence before every request: max(3.5 char, 44 bits)   */
     int byte_us;      /* max silence inside a reply once it started             */
+    int net_us;       /* added to every response timeout (RTU over TCP), else 0 */
 } mbfb_timing_t;
 
 /** Derive the line timing from baud and character format (README "Timing"). */
@@ -130,6 +137,11 @@ extern const mbfb_backend_t mbfb_backend_rtu;    /* libmodbus RTU               
 extern const mbfb_backend_t mbfb_backend_nocrc;  /* libmodbus RTU, 00 00 sent as CRC */
 extern const mbfb_backend_t mbfb_backend_ascii;  /* ':' hex LRC CR LF, written here  */
 extern const mbfb_backend_t mbfb_backend_tcp;    /* libmodbus TCP                  */
+extern const mbfb_backend_t mbfb_backend_rtutcp; /* RTU frames on TCP, written here */
+
+/** "tcp://host:port" -> host (without the brackets of [::1]) and the port text
+ *  (mbfb_backend_rtutcp.c). 0, or -1 when it has no host or port. */
+int  mbfb_tcp_split(const char *port, char *host, size_t n, const char **service);
 
 /* libmodbus helpers (mbfb_backend_lm.c): every serial framing's port is opened and
  * configured by libmodbus (modbus_new_rtu + modbus_connect), so termios settings are

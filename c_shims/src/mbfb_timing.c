@@ -14,6 +14,8 @@
  *               the SetPro maximum). 9600 8N2, one register: 54 ms (SetPro: >= 50).
  *               Modbus TCP (a gateway to a serial line): the same at 9600 8N1
  *               unless a baud is given, and at least 500 ms.
+ *               RTU over TCP: the serial figure at the line's baud + net_us
+ *               (MBFB_NET_ALLOWANCE_US, the network leg).
  */
 #include <time.h>
 
@@ -32,6 +34,7 @@ void mbfb_timing_init(mbfb_timing_t *t, int baud, char parity, int data_bits, in
     if (baud > 19200 && t->gap_us < 1750)
         t->gap_us = 1750;
     t->byte_us = 4 * t->char_us > 20000 ? 4 * t->char_us : 20000;
+    t->net_us = 0;
 }
 
 /* Bytes on the wire of a frame in a framing. */
@@ -56,7 +59,7 @@ int mbfb_response_timeout_us(const mbfb_timing_t *t, int framing, int req_frame_
     int64_t us = 2 * (bytes * t->char_us + MBFB_PROCESSING_US);
     int64_t min_us = framing == MBFB_FRAMING_TCP ? 500000 : 50000;
 
-    return (int)(us > min_us ? us : min_us);
+    return (int)(us > min_us ? us : min_us) + t->net_us;
 }
 
 /* CLOCK_MONOTONIC in microseconds. */

@@ -305,7 +305,7 @@ def rungs(ld):
 
 VARS = [  # name, type, address, initial value, documentation
     ("BusPort", "<string/>", None, "'/tmp/heat_treat_bus'",
-     "The bus. Against the simulator: the --link path of mbsim.py; on a PLC: '/dev/ttyUSB0'."),
+     "The bus. Against the simulator: the --symlink path of mbsim.py; on a PLC: '/dev/ttyUSB0'."),
     ("BusLine", '<derived name="MB_LINE"/>', None,
      "(Baud := 9600, DataBits := 8, Framing := 'RTU', Parity := 'N', StopBits := 2)",
      "One line, one setting for all three instruments: 9600 8N2 Modbus RTU (the MV-D94's default; "

@@ -5,8 +5,10 @@
 
 The test program's header says which simulator it needs, in one comment line:
     (*@SIM format=8N2 baud=9600 time-scale=0.001 device=mvd94:1:SV=100.0,DP=1 device=... *)
-The simulator runs on a pty reached through a stable --link path (reopen_port keeps it);
-the program gets it in MBFB_TEST_PORT and the control socket in MBFB_SIM_CONTROL. The
+The simulator runs on a pty reached through a stable --symlink path (reopen_port keeps it),
+or with transport=rtu-tcp as an RTU-over-TCP gateway on 127.0.0.1 (the port is then
+'tcp://127.0.0.1:PORT'); the program gets it in MBFB_TEST_PORT and the control socket in
+MBFB_SIM_CONTROL. The
 simulator is stopped by pid whatever happens (simctl.Simulator context manager).
 """
 from __future__ import annotations
@@ -31,12 +33,12 @@ def sim_spec(st_path: str) -> dict:
     m = re.search(r"\(\*@SIM(.*?)\*\)", text, re.S)
     if not m:
         raise SystemExit(f"{st_path}: no (*@SIM ... *) header")
-    spec = {"devices": [], "format": "8N2", "baud": 9600, "time-scale": 1.0}
+    spec = {"devices": [], "format": "8N2", "baud": 9600, "time-scale": 1.0, "transport": "pty"}
     for item in m.group(1).split():
         key, _, value = item.partition("=")
         if key == "device":
             spec["devices"].append(value)
-        elif key in ("format", "baud", "time-scale"):
+        elif key in ("format", "baud", "time-scale", "transport"):
             spec[key] = value
         else:
             raise SystemExit(f"{st_path}: unknown @SIM key {key!r}")
@@ -62,9 +64,12 @@ def main() -> int:
     tmp = tempfile.mkdtemp(prefix="fbtest-")
     try:
         link = os.path.join(tmp, "ttySIM")
+        pty = spec["transport"] == "pty"
         with Simulator(spec["devices"], baud=int(spec["baud"]), fmt=spec["format"],
-                       time_scale=float(spec["time-scale"]), link=link) as sim:
-            env = dict(os.environ, MBFB_TEST_PORT=link, MBFB_SIM_CONTROL=sim.control_path)
+                       time_scale=float(spec["time-scale"]), transport=spec["transport"],
+                       link=link if pty else None) as sim:
+            port = link if pty else f"tcp://{sim.tcp[0]}:{sim.tcp[1]}"
+            env = dict(os.environ, MBFB_TEST_PORT=port, MBFB_SIM_CONTROL=sim.control_path)
             try:
                 proc = subprocess.run([args.exe], env=env, timeout=args.timeout)
                 rc = proc.returncode

@@ -250,7 +250,7 @@ static void bad_args(void)
     c.data_bits = 8;
     c.stop_bits = 3;
     CHECK_EQ(mbfb_bus_open(&c), -MBFB_E_INVAL);
-    c = t_cfg("tcp://127.0.0.1:1502", 9600, MBFB_FRAMING_RTU, 0, -1);
+    c = t_cfg("tcp://127.0.0.1:1502", 9600, MBFB_FRAMING_ASCII, 0, -1); /* RTU only */
     CHECK_EQ(mbfb_bus_open(&c), -MBFB_E_INVAL);
     c = t_cfg("/dev/ttyUSB0", 9600, MBFB_FRAMING_TCP, 0, -1);
     CHECK_EQ(mbfb_bus_open(&c), -MBFB_E_INVAL);

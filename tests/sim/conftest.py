@@ -69,7 +69,7 @@ class RawPort:
     def __init__(self, port, baud=9600, stop=2):
         import serial
         # The simulator hears only a master whose port matches the device's line (a pty
-        # shows it baud and stop bits): 8N2 by default, as the simulator's default line.
+        # shows it the baud; stop bits need not match): 8N2 by default, as the default line.
         self.ser = serial.Serial(port, baud, stopbits=stop, timeout=0)
 
     def xfer(self, data, wait=0.3):

@@ -48,7 +48,12 @@ def run_bad(*args):
     (["--pty", "--baud", "fast", "--device", "mvd94:1"], "--baud"),
     (["--pty", "--time-scale", "nan", "--device", "mvd94:1"], "--time-scale"),
     (["--pty", "--time-scale", "-5", "--device", "mvd94:1"], "--time-scale"),
-    (["--pty", "--format", "8N1", "--device", "mvd94:1"], "speaks 8N2"),
+    (["--pty", "--format", "8E2", "--device", "mvd94:1"], "speaks 8N2"),
+    (["--rtu-tcp", "0.0.0.0:0", "--device", "mvd94:1"], "--rtu-tcp '0.0.0.0:0': the simulator listens on 127.0.0.1 only"),
+    (["--rtu-tcp", "127.0.0.1:http", "--device", "mvd94:1"], "PORT 0..65535"),
+    (["--rtu-tcp", "127.0.0.1:0", "--device", "mts9:1:framing=ascii"], "--rtu-tcp carries rtu framing only"),
+    (["--tcp", "127.0.0.1:0", "--symlink", "/tmp/x", "--device", "mvd94:1"], "--symlink needs --pty"),
+    (["--pty", "--link", "/tmp/x", "--device", "mvd94:1"], "unrecognized"),
     (["--pty", "--baud", "115200", "--device", "fdc100:1"], "cannot run at 115200"),
     (["--pty", "--device", "mvd94:x"], "mvd94:x"),
     (["--pty", "--device", "mvd94:1:SV=abc"], "SV=abc: not a number"),
@@ -139,7 +144,7 @@ def test_control_values_that_would_wrap_are_refused(req, why):
 def test_ready_line_sigterm_sigint_and_cleanup(tmp_path):
     link, ctl = str(tmp_path / "port"), str(tmp_path / "ctl.sock")
     for sig in (signal.SIGTERM, signal.SIGINT):
-        proc = subprocess.Popen([PY, MBSIM, "--pty", "--link", link, "--control", ctl,
+        proc = subprocess.Popen([PY, MBSIM, "--pty", "--symlink", link, "--control", ctl,
                                  "--device", "mvd94:1:SV=1000"], stdout=subprocess.PIPE,
                                 text=True)
         try:

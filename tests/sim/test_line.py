@@ -1,12 +1,13 @@
-"""The simulator enforces the line: a master whose port settings differ from the device's gets
-what a UART would give (nothing valid), on the simulator's own pty and through ptyline. Masters
-we did not write: minimalmodbus (pyserial) and pymodbus.
+"""The simulator enforces the line like a UART: a master whose baud differs from the device's, or
+a device moved to another parity, gets nothing valid; other stop bits do not matter (a UART
+checks only the first stop bit, so 8N1 talks to 8N2). On the simulator's own pty and through
+ptyline. Masters we did not write: minimalmodbus (pyserial) and pymodbus.
 
 On a Linux pty a master's parity and data bits are invisible (the kernel drops PARENB and CS7),
-so 8E1 shows as 8N1: against an 8N2 device it fails on the stop bits, which the pty does show.
+so a master's parity cannot be checked there: the parity checks below move the device instead.
 A pty also refuses (EINVAL) a tcsetattr whose only change is PARENB, so pyserial cannot open it
 at 8E1 right after a master at 8N1 on the same pty (and pymodbus, which sets the port twice, never
-can): the 8E1 master here is minimalmodbus, opened when the pty is at 8N2.
+can): the 8E1 master here is minimalmodbus, opened with a fresh port object.
 """
 import minimalmodbus
 import pytest
@@ -38,20 +39,19 @@ def pymodbus_read(port, parity, stopbits, baud=9600):
         client.close()
 
 
-def test_8e1_master_gets_no_reply_from_an_8n2_device_and_8n2_does():
+def test_other_stop_bits_are_heard_and_another_baud_is_not():
     with simctl.Simulator(["mvd94:1:SV=1000"]) as sim:        # the MV-D94: 9600 8N2 only
+        assert read_sv(sim.port, stop=1) == 1000              # 8N1 master, 8N2 device
+        assert read_sv(sim.port, stop=2) == 1000
+        assert pymodbus_read(sim.port, "N", 1) == 1000
         with pytest.raises(NO_REPLY):
-            read_sv(sim.port, parity="E", stop=1)
-        assert read_sv(sim.port, parity="N", stop=2) == 1000
-        with pytest.raises(NO_REPLY):
-            read_sv(sim.port, parity="E", stop=1)
-        assert pymodbus_read(sim.port, "N", 2) == 1000
+            read_sv(sim.port, baud=19200, stop=1)
         dev = sim.ctl("stats")["devices"]["1"]
-        assert dev["line_mismatch"] == 2 and dev["replies"] == 2
+        assert dev["line_mismatch"] == 1 and dev["replies"] == 3
         log = sim.log()
         infos = [f.get("info") for f in log if f["dir"] == "rx"]
-        assert infos.count("line settings differ: heard as garbage") == 2
-        assert [f["hex"] for f in log if f["dir"] == "tx"] == ["01 03 02 03 E8 B8 FA"] * 2
+        assert infos.count("line settings differ: heard as garbage") == 1
+        assert [f["hex"] for f in log if f["dir"] == "tx"] == ["01 03 02 03 E8 B8 FA"] * 3
 
 
 def test_a_master_at_another_baud_gets_nothing():
@@ -71,24 +71,43 @@ def test_a_device_moved_to_another_baud_answers_there_only():
 
 
 def test_fdc_at_its_factory_8e1():
-    """An FDC at 9600 8E1: a master at 8E1 is heard (parity invisible on a pty, 1 stop bit
-    matches); a master at 8N2 is not."""
+    """An FDC at 9600 8E1: a master at 8E1 is heard; a master at 4800 is not."""
     with simctl.Simulator(["fdc100:1"], fmt="8E1") as sim:
-        with pytest.raises(NO_REPLY):
-            instrument(sim.port, 1, parity="N", stop=2, timeout=0.3).read_register(39)
         assert instrument(sim.port, 1, parity="E", stop=1, timeout=0.3).read_register(39) == 1
+        with pytest.raises(NO_REPLY):
+            instrument(sim.port, 1, baud=4800, parity="E", stop=1, timeout=0.3).read_register(39)
         assert sim.ctl("stats")["devices"]["1"]["line_mismatch"] == 1
+
+
+def test_a_device_moved_to_another_parity_hears_garbage():
+    """An FDC on a 9600 8N1 line set to even parity (PARI 0) hears the line's frames as parity
+    errors and stays silent; set back to none (PARI 2) it answers. Its STOP moved to 2 stop
+    bits does not matter."""
+    with simctl.Simulator(["fdc100:1"], fmt="8N1") as sim:
+        assert read_fdc(sim.port) == 1
+        sim.ctl("set", addr=1, reg="STOP", raw=1)            # 2 stop bits: still heard
+        assert read_fdc(sim.port) == 1
+        sim.ctl("set", addr=1, reg="PARI", raw=0)            # even parity: garbage
+        with pytest.raises(NO_REPLY):
+            read_fdc(sim.port)
+        sim.ctl("set", addr=1, reg="PARI", raw=2)
+        assert read_fdc(sim.port) == 1
+        assert sim.ctl("stats")["devices"]["1"]["line_mismatch"] == 1
+
+
+def read_fdc(port):
+    return instrument(port, 1, parity="N", stop=1, timeout=0.3).read_register(39)
 
 
 def test_through_ptyline_a_wrong_line_is_garbled():
     binary = os_ptyline()
     with simctl.Simulator(["mvd94:1:SV=1000"], pace=True, extra=["--ptyline", binary]) as sim:
         with pytest.raises(NO_REPLY):
-            read_sv(sim.port, parity="E", stop=1)
+            read_sv(sim.port, baud=19200)
         stats = sim.ctl("line_stats")["stats"]
         assert stats["m2s"]["format_errors"] == 8          # the whole request, as NUL bytes
         assert stats["s2m"]["bytes"] == 0
-        assert read_sv(sim.port, parity="N", stop=2) == 1000
+        assert read_sv(sim.port, stop=1) == 1000          # other stop bits: heard
         assert pymodbus_read(sim.port, "N", 2) == 1000
         line = sim.ctl("stats")["line"]
         assert line["rx_frames"] == 2 and line["bad_frames"] == 1     # the garbled one: NULs
@@ -97,7 +116,7 @@ def test_through_ptyline_a_wrong_line_is_garbled():
 
 
 @pytest.mark.parametrize("devices,fmt,baud,why", [
-    (["mvd94:1"], "8N1", 9600, "speaks 8N2"),
+    (["mvd94:1"], "8O2", 9600, "speaks 8N2"),
     (["vd:1"], "8E1", 9600, "speaks 8N2"),
     (["mvd94:1"], "8N2", 38400, "cannot run at 38400"),
     (["fdc100:1"], "8N2", 57600, "cannot run at 57600"),

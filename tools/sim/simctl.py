@@ -2,7 +2,7 @@
 
     from simctl import Simulator
     with Simulator(["mvd94:1:SV=100.0,DP=1"]) as sim:     # starts mbsim.py on a new pty
-        sim.port                                          # '/dev/pts/N' (or the --link path)
+        sim.port                                          # '/dev/pts/N' (or the --symlink path)
         sim.control({"op": "get", "addr": 1, "reg": "SV"})  # -> {"ok": True, "raw": 1000, ...}
     # leaving the block stops it by pid
 
@@ -34,8 +34,8 @@ class SimulatorError(RuntimeError):
 class Simulator:
     """One simulator process. Arguments mirror mbsim.py's options.
 
-    devices: list of 'KIND:ADDR[:NAME=VALUE,...]'. transport: 'pty' (default), 'tcp' or
-    'serial' (then serial=DEVICE). fmt is --format. faults: list of dicts (written to a
+    devices: list of 'KIND:ADDR[:NAME=VALUE,...]'. transport: 'pty' (default), 'tcp',
+    'rtu-tcp' or 'serial' (then serial=DEVICE). fmt is --format. faults: list of dicts (written to a
     temporary --faults file). extra: more raw arguments.
     """
 
@@ -49,9 +49,9 @@ class Simulator:
         if transport == "pty":
             args.append("--pty")
             if link:
-                args += ["--link", link]
-        elif transport == "tcp":
-            args += ["--tcp", f"127.0.0.1:{tcp_port}"]
+                args += ["--symlink", link]
+        elif transport in ("tcp", "rtu-tcp"):
+            args += [f"--{transport}", f"127.0.0.1:{tcp_port}"]
         elif transport == "serial":
             args += ["--serial", serial]
         else:
@@ -72,7 +72,7 @@ class Simulator:
         self.start_timeout = start_timeout
         self.proc = None
         self.port = None            # pty path / link / serial device / '127.0.0.1:PORT'
-        self.tcp = None             # (host, port) with transport='tcp'
+        self.tcp = None             # (host, port) with transport 'tcp' or 'rtu-tcp'
         self.ready_line = None
         self._sock = None
         self._file = None
@@ -90,7 +90,7 @@ class Simulator:
         self.ready_line = line
         kind, _, where = line.partition(" ")
         self.port = where
-        if kind == "TCP":
+        if kind in ("TCP", "RTU-TCP"):
             host, _, port = where.rpartition(":")
             self.tcp = (host, int(port))
         return self
@@ -105,7 +105,7 @@ class Simulator:
         thread.start()
         thread.join(self.start_timeout)
         line = result.get("line", "")
-        if not line.split(" ")[0] in ("PTY", "SERIAL", "TCP"):
+        if not line.split(" ")[0] in ("PTY", "SERIAL", "TCP", "RTU-TCP"):
             if self.proc.poll() is None:
                 self.proc.kill()
             self.proc.wait()

@@ -16,6 +16,7 @@ from .control import Control
 from .fdc100 import Fdc100
 from .mts9 import MtS9
 from .mvd94 import MvD94, Vd
+from .rtutcp import RtuTcpLine
 from .tcp import TcpLine
 from .transport import SerialLine
 
@@ -31,14 +32,14 @@ class Parser(argparse.ArgumentParser):
         self.exit(2, f"mbsim: error: {message} (see --help)\n")
 
 
-def parse_tcp(text: str) -> tuple[str, int]:
+def parse_tcp(text: str, option: str = "--tcp") -> tuple[str, int]:
     """'127.0.0.1:PORT' -> (host, port); ValueError for anything else."""
     host, sep, port = text.rpartition(":")
     if not sep or not port.isdigit() or not 0 <= int(port) <= 65535:
-        raise ValueError(f"--tcp {text!r}: expected 127.0.0.1:PORT with PORT 0..65535")
+        raise ValueError(f"{option} {text!r}: expected 127.0.0.1:PORT with PORT 0..65535")
     host = host.strip("[]") or "127.0.0.1"
     if host not in ("127.0.0.1", "localhost", "::1"):
-        raise ValueError(f"--tcp {text!r}: the simulator listens on 127.0.0.1 only")
+        raise ValueError(f"{option} {text!r}: the simulator listens on 127.0.0.1 only")
     return host, int(port)
 
 
@@ -48,7 +49,9 @@ def parse_args(argv):
     where.add_argument("--pty", action="store_true", help="serve on a new pty")
     where.add_argument("--serial", metavar="DEVICE", help="serve on a serial device")
     where.add_argument("--tcp", metavar="127.0.0.1:PORT", help="Modbus/TCP (PORT 0: any free)")
-    p.add_argument("--link", metavar="PATH", help="with --pty: symlink to the pty")
+    where.add_argument("--rtu-tcp", metavar="127.0.0.1:PORT",
+                       help="RTU frames over TCP, as a transparent gateway (PORT 0: any free)")
+    p.add_argument("--symlink", metavar="PATH", help="with --pty: symlink to the pty")
     p.add_argument("--baud", type=int, default=9600)
     p.add_argument("--format", default="8N2", help="data bits, parity N/E/O, stop bits")
     p.add_argument("--device", action="append", default=[], metavar="KIND:ADDR[:NAME=VALUE,...]",
@@ -64,17 +67,18 @@ def parse_args(argv):
     args = p.parse_args(argv)
     if not args.device:
         p.error("at least one --device is required")
-    if args.link and not args.pty:
-        p.error("--link needs --pty")
+    if args.symlink and not args.pty:
+        p.error("--symlink needs --pty")
     if not args.time_scale > 0 or args.time_scale == float("inf"):
         p.error("--time-scale must be a number > 0")
     if not 50 <= args.baud <= 4000000:
         p.error(f"--baud {args.baud}: must be 50..4000000")
-    if args.tcp:
-        try:
-            parse_tcp(args.tcp)
-        except ValueError as err:
-            p.error(str(err))
+    for option, value in (("--tcp", args.tcp), ("--rtu-tcp", args.rtu_tcp)):
+        if value:
+            try:
+                parse_tcp(value, option)
+            except ValueError as err:
+                p.error(str(err))
     return args
 
 
@@ -112,6 +116,8 @@ def build(args):
     framing = framings.pop() if framings else "rtu"
     if framing not in ("rtu", "nocrc", "ascii"):
         raise ValueError(f"framing must be rtu, nocrc or ascii, not {framing!r}")
+    if framing != "rtu" and args.rtu_tcp:
+        raise ValueError(f"--rtu-tcp carries rtu framing only, not {framing}")
     if framing != "rtu" and any(k != "mts9" for k, _, _ in specs):
         raise ValueError(f"only mts9 devices speak {framing}; put the others on another line")
     line = LineSettings(args.baud, data, parity, stop, framing, args.time_scale)
@@ -154,13 +160,14 @@ def find_ptyline(given: str | None) -> str | None:
 
 
 def check_line(kind, addr, dev, line):
-    """The line's baud and format must be ones the device can speak (its map's "line")."""
+    """The line's baud and format must be ones the device can speak (its map's "line"); the
+    stop bits need not match (a UART checks only the first stop bit)."""
     spec = dev.MAP.line if hasattr(dev, "MAP") else {}
     fmt = f"{line.data_bits}{line.parity}{line.stop_bits}"
     if spec.get("bauds") and line.baud not in spec["bauds"]:
         raise ValueError(f"{kind}:{addr} cannot run at {line.baud} baud (it speaks "
                          f"{', '.join(map(str, spec['bauds']))}): put it on a line of its own")
-    if spec.get("formats") and fmt not in spec["formats"]:
+    if spec.get("formats") and fmt[:2] not in [f[:2] for f in spec["formats"]]:
         raise ValueError(f"{kind}:{addr} speaks {' or '.join(spec['formats'])}, not {fmt} "
                          "(--format): put it on a line of its own")
 
@@ -175,12 +182,16 @@ class App:
             host, port = parse_tcp(args.tcp)
             self.transport = TcpLine(self.bus, host, port)
             self.transport_kind = "tcp"
+        elif args.rtu_tcp:
+            host, port = parse_tcp(args.rtu_tcp, "--rtu-tcp")
+            self.transport = RtuTcpLine(self.bus, host, port)
+            self.transport_kind = "rtu-tcp"
         else:
             ptyline = find_ptyline(args.ptyline) if args.pace and args.pty else None
             if args.pace and args.pty and ptyline is None:
                 print("mbsim: note: mbfb-ptyline not found; --pace paces replies only and "
                       "line statistics are unavailable", file=sys.stderr)
-            self.transport = SerialLine(self.bus, device=args.serial, link=args.link,
+            self.transport = SerialLine(self.bus, device=args.serial, link=args.symlink,
                                         pace=args.pace, seed=args.seed, ptyline=ptyline)
             self.transport_kind = "serial"
         self.control = Control(self)

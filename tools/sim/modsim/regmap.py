@@ -129,16 +129,17 @@ class Device:
     def hears(self, master: dict | None = None) -> bool:
         """Does a frame sent by this master reach the device as sent? `master` holds the
         character format the master's port is set to, as far as the transport can see it
-        (on a pty: baud and stop bits; parity and data bits are invisible there and taken from
-        the line, --format). None: the line itself (TCP, a real serial port). A device whose
-        settings differ hears garbage and stays silent, like a UART with framing errors."""
+        (on a pty: the baud; parity and data bits are invisible there and taken from the line,
+        --format). None: the line itself (TCP, a real serial port). A device whose baud, data
+        bits or parity differ hears garbage and stays silent, like a UART with framing or
+        parity errors. Stop bits are not compared: a UART checks only the first stop bit, so a
+        master at 8N1 and a device at 8N2 understand each other."""
         if master == ANY_LINE:
             return True
-        seen = {"baud": self.line.baud, "data": self.line.data_bits,
-                "parity": self.line.parity, "stop": self.line.stop_bits}
+        seen = {"baud": self.line.baud, "data": self.line.data_bits, "parity": self.line.parity}
         if master:
             seen.update(master)
-        own = dict(zip(("baud", "data", "parity", "stop"), self.char_format()))
+        own = dict(zip(("baud", "data", "parity"), self.char_format()[:3]))
         return all(v is None or v == seen[k] for k, v in own.items())
 
     # ----- register access by name/number (control protocol, start-up options) -----

@@ -90,7 +90,7 @@ class SerialLine:
         asyncio.get_running_loop().add_reader(self.fd, self._readable)
 
     def _relink(self):
-        """Point --link at the current port (atomically, so it is never missing)."""
+        """Point --symlink at the current port (atomically, so it is never missing)."""
         if self.link:
             tmp = f"{self.link}.tmp{os.getpid()}"
             if os.path.lexists(tmp):
@@ -120,7 +120,7 @@ class SerialLine:
             os.unlink(self.link)
 
     async def reopen(self, down_ms: float) -> str:
-        """Close the port (masters see it vanish), wait, open again (same --link path).
+        """Close the port (masters see it vanish), wait, open again (same --symlink path).
         On our own pty the old pty's number stays taken (its slave end held) until the link
         names the new one: a master reopening the link meanwhile finds a dead pty, never
         another program's pty that got the number."""
@@ -245,18 +245,18 @@ class SerialLine:
 
     def master_format(self) -> dict | None:
         """The master's port settings as far as our own pty shows them: tcgetattr on the pty
-        master returns the termios the master set on its end (Linux): speed and stop bits.
-        Parity and data bits cannot be seen (a pty drops PARENB and CS7), so Device.hears
-        takes them from the line. None on a real serial port (its UART does the real thing)
-        and through ptyline (ptyline checks both of its sides)."""
+        master returns the termios the master set on its end (Linux): its speed. Parity and
+        data bits cannot be seen (a pty drops PARENB and CS7), so Device.hears takes them from
+        the line; stop bits are not compared (a UART checks only the first). None on a real
+        serial port (its UART does the real thing) and through ptyline (ptyline checks both of
+        its sides)."""
         if self.device is not None or self.ptyline is not None or self.fd is None:
             return None
         try:
             attrs = termios.tcgetattr(self.fd)
         except termios.error:
             return None
-        return {"baud": SPEED_BAUD.get(attrs[5], -1),
-                "stop": 2 if attrs[2] & termios.CSTOPB else 1}
+        return {"baud": SPEED_BAUD.get(attrs[5], -1)}
 
     # ----- transmit: whole frame, or paced at the character time with a turnaround -----
     def line_stats(self) -> dict:

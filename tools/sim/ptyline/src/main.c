@@ -33,7 +33,7 @@ typedef struct {
     options opt;
     pl_line line;
     pl_side side[2]; /* index = the direction whose bytes it sends: M, S */
-    pl_settings settings; /* the line's speed and stop bits, checked on both sides */
+    pl_settings settings; /* the line's speed (checked on both sides) and stop bits */
     pl_report_info info;
     FILE *log;
 } ptyline;
@@ -187,9 +187,10 @@ static void receive(ptyline *p, int d, int64_t now)
         long n = pl_side_read(&p->side[d], buf, room < sizeof buf ? room : sizeof buf);
         if (n <= 0)
             return;
-        /* A sender or receiver whose port is set to another speed or stop bits than
-         * the line gets what a UART gives: framing errors, which a raw Linux tty
-         * delivers as NUL bytes.  Checked per read, as a peer may change its port. */
+        /* A sender or receiver whose port is set to another speed than the line gets
+         * what a UART gives: framing errors, which a raw Linux tty delivers as NUL
+         * bytes (other stop bits do not: a UART checks only the first).  Checked per
+         * read, as a peer may change its port. */
         if (!pl_side_settings_ok(&p->side[d], &p->settings) ||
             (p->side[!d].up && !pl_side_settings_ok(&p->side[!d], &p->settings))) {
             memset(buf, 0, (size_t)n);
