@@ -184,7 +184,7 @@ class App:
             self.transport_kind = "tcp"
         elif args.rtu_tcp:
             host, port = parse_tcp(args.rtu_tcp, "--rtu-tcp")
-            self.transport = RtuTcpLine(self.bus, host, port)
+            self.transport = RtuTcpLine(self.bus, host, port, pace=args.pace, seed=args.seed)
             self.transport_kind = "rtu-tcp"
         else:
             ptyline = find_ptyline(args.ptyline) if args.pace and args.pty else None

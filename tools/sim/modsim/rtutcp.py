@@ -5,10 +5,15 @@ A stream has no t3.5: a request is framed by its expected length (function code 
 count, frames.rtu_request_length); a partial frame is dropped after PARTIAL_S of silence and
 bytes that start no known request are dropped as garbage, as the device on the gateway's line
 would ignore them. Like a gateway in TCP-server mode, what the line carries goes to every open
-connection: a late reply reaches a master that has connected again meanwhile."""
+connection: a late reply reaches a master that has connected again meanwhile.
+
+With --pace the gateway's RS-485 line is timed at --baud: one frame at a time, a request's
+characters, then the device's turnaround (1..10 ms, seeded, as ptyline's) and the reply's
+characters, and only then the reply goes on the stream, whole, as a gateway forwards it."""
 from __future__ import annotations
 
 import asyncio
+import random
 
 from . import frames
 from .tcp import TcpLine
@@ -18,6 +23,21 @@ PARTIAL_S = 0.5     # a request cut short is dropped after this much silence
 
 class RtuTcpLine(TcpLine):
     """A gateway on 127.0.0.1: each connection is a byte stream of RTU frames (CRC checked)."""
+
+    def __init__(self, bus, host: str, port: int, pace: bool = False, seed: int = 0):
+        super().__init__(bus, host, port)
+        self.pace = pace
+        self.rng = random.Random(f"{seed}:turnaround")
+        self.line_free = 0.0            # --pace: when the gateway's line is silent again
+
+    def _line_delay(self, request: bytes, reply: bytes) -> float:
+        """--pace: seconds from now until the reply has crossed the gateway's line."""
+        loop = asyncio.get_running_loop()
+        ct = self.bus.line.char_time
+        start = max(loop.time(), self.line_free)
+        done = start + len(request) * ct + self.rng.uniform(0.001, 0.010) + len(reply) * ct
+        self.line_free = done
+        return done - loop.time()
 
     async def start(self) -> str:
         await super().start()
@@ -81,11 +101,12 @@ class RtuTcpLine(TcpLine):
         if reply is None:
             return
         out = frames.encode_rtu(reply.addr, reply.pdu)
-        delay, info = 0.0, ""
+        delay, info = (self._line_delay(frame, out) if self.pace else 0.0), ""
         if reply.fault is not None:
-            out, delay = reply.queue.shape(reply.fault, out, "rtu",
+            out, extra = reply.queue.shape(reply.fault, out, "rtu",
                                            lambda a: frames.encode_rtu(a, reply.pdu),
                                            lambda f: frames.corrupt_check("rtu", f))
+            delay += extra
             info = reply.fault.kind
         if out is None:
             self.bus.record("tx", b"", "drop")
