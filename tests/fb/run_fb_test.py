@@ -8,7 +8,9 @@ The test program's header says which simulator it needs, in one comment line:
 The simulator runs on a pty reached through a stable --symlink path (reopen_port keeps it),
 or with transport=rtu-tcp as an RTU-over-TCP gateway on 127.0.0.1 (the port is then
 'tcp://127.0.0.1:PORT'); the program gets it in MBFB_TEST_PORT and the control socket in
-MBFB_SIM_CONTROL. The
+MBFB_SIM_CONTROL. transport=pymodbus-mvd94 serves the program no simulator but pymodbus's RTU
+framer on a TCP server at 127.0.0.1 with an MV-D94's registers (tests/shims/pymodbus_peer.py,
+a peer we did not write; no control socket). The
 simulator is stopped by pid whatever happens (simctl.Simulator context manager).
 """
 from __future__ import annotations
@@ -61,6 +63,8 @@ def main() -> int:
     from simctl import Simulator  # tools/sim/simctl.py
 
     spec = sim_spec(args.st)
+    if spec["transport"] == "pymodbus-mvd94":
+        return run_pymodbus(args)
     tmp = tempfile.mkdtemp(prefix="fbtest-")
     try:
         link = os.path.join(tmp, "ttySIM")
@@ -81,6 +85,30 @@ def main() -> int:
                 print(sim.stderr()[-3000:])
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
+    return 0 if rc == 0 else 1
+
+
+def run_pymodbus(args) -> int:
+    """The program against pymodbus's RTU-over-TCP server (stopped by pid whatever happens)."""
+    peer = os.path.join(os.path.dirname(HERE), "shims", "pymodbus_peer.py")
+    proc = subprocess.Popen([sys.executable, peer, "rtu-tcp", "mvd94"], stdout=subprocess.PIPE,
+                            text=True)
+    try:
+        ready = proc.stdout.readline().split()
+        if len(ready) != 2 or ready[0] != "READY":
+            print(f"FAIL: pymodbus peer did not start ({ready})")
+            return 1
+        env = dict(os.environ, MBFB_TEST_PORT=f"tcp://127.0.0.1:{ready[1]}")
+        env.pop("MBFB_SIM_CONTROL", None)
+        try:
+            rc = subprocess.run([args.exe], env=env, timeout=args.timeout).returncode
+        except subprocess.TimeoutExpired:
+            print(f"FAIL: {args.exe} still running after {args.timeout} s (killed)")
+            rc = 1
+    finally:
+        proc.terminate()
+        proc.wait(10)
+        proc.stdout.close()
     return 0 if rc == 0 else 1
 
 

@@ -2,11 +2,13 @@
 test_rtutcp.c.
 
 usage: pymodbus_peer.py PORT rtu|ascii     serial server on PORT; prints READY
-       pymodbus_peer.py rtu-tcp            RTU framer on a TCP server at 127.0.0.1, any free
+       pymodbus_peer.py rtu-tcp [mvd94]    RTU framer on a TCP server at 127.0.0.1, any free
                                            port (RTU over TCP); prints READY PORT
 Slave 1: holding register at PDU address a = 0x3001 + a, input register = 0x4001 + a
 (pymodbus's sequential block is 1-based), 100 of each; other addresses give
-exception 2. Serves until killed.
+exception 2. With `mvd94`, slave 1 holds an MV-D94's map instead (MVD94_HR: holding
+registers 0x00..0x21 at the factory settings with SV 123.4 at one decimal; PV 27.5 at input
+register 0x1000), for a device block (tests/fb t_rtutcp_pymodbus.st). Serves until killed.
 """
 import asyncio
 import sys
@@ -16,8 +18,17 @@ from pymodbus.datastore import (ModbusSequentialDataBlock, ModbusServerContext,
                                 ModbusSlaveContext)
 from pymodbus.server import ModbusTcpServer, StartSerialServer
 
-hr = ModbusSequentialDataBlock(0, [0x3000 + i for i in range(101)])
-ir = ModbusSequentialDataBlock(0, [0x4000 + i for i in range(101)])
+# SV SPOF PVOF A1SP A2SP A3SP PB TD CT HYST A1HY A2HY A3HY LOCK TYPE UNIT DP ACT LOLT HILT
+# FILT A1FU A1MD A2FU A2MD A3FU A3MD ADDR BAUD CH01..CH04 MR (maps/mvd94.json)
+MVD94_HR = [1234, 0, 0, 10, 10, 10, 100, 30, 20, 1, 1, 1, 1, 0x20, 1, 0x0C, 0x11, 0x14,
+            0xF831, 9999, 0, 0x30, 0x16, 0x31, 0x16, 0x32, 0x16, 1, 0x1E, 0, 0, 3000, 0, 0]
+
+if sys.argv[1:] == ["rtu-tcp", "mvd94"]:
+    hr = ModbusSequentialDataBlock(0, [0] + MVD94_HR)
+    ir = ModbusSequentialDataBlock(0x1000, [0, 275])
+else:
+    hr = ModbusSequentialDataBlock(0, [0x3000 + i for i in range(101)])
+    ir = ModbusSequentialDataBlock(0, [0x4000 + i for i in range(101)])
 ctx = ModbusServerContext(slaves={1: ModbusSlaveContext(hr=hr, ir=ir)}, single=False)
 
 
