@@ -2,7 +2,8 @@
  * test_rtutcp.c - RTU over TCP (Port 'tcp://HOST:PORT', Framing RTU): RTU frames with
  * their CRC on a TCP stream, as to a transparent Ethernet-to-RS-485 gateway.
  *   sim       the simulator (mbsim --rtu-tcp on 127.0.0.1): reads, writes read back, an
- *             exception;
+ *             exception; drop, bad CRC, wrong slave, truncated reply and noise each absorbed
+ *             by a retry with the right value and counted;
  *             a late reply (forwarded on the stream as a gateway does) is never taken
  *             as the answer to another request: every read gives its own register's
  *             value; a dropped connection fails with PORTLOST and a later request
@@ -131,6 +132,36 @@ static void sim(void)
     CHECK_EQ(t_run(dev, 3, 3, 2, NULL, v, 2), 2);
     CHECK_EQ(v[0], 11);
     CHECK_EQ(v[1], 12);
+
+    /* one fault per read, each absorbed by the retries: the right value, counted */
+    {
+        static const struct { const char *kind; int what; } faults[] = {
+            {"\"drop\"", 0}, {"\"bad_crc\"", 1}, {"\"wrong_slave\",\"slave\":7", 2},
+            {"\"truncate\"", 0}, {"\"noise\",\"where\":\"before\",\"bytes\":3", 3}};
+        for (int k = 0; k < (int)(sizeof faults / sizeof faults[0]); k++) {
+            char fault[160];
+            mbfb_diag_t b = t_diag(dev);
+            snprintf(fault, sizeof fault, "{\"op\":\"fault\",\"addr\":1,\"kind\":%s,\"count\":1}",
+                     faults[k].kind);
+            CHECK(control(fault));
+            v[0] = 0;
+            CHECK_EQ(t_run(dev, 3, 3, 1, NULL, v, 1), 1);
+            CHECK_EQ(v[0], 11);
+            d = t_diag(dev);
+            switch (faults[k].what) {
+            case 0: CHECK(d.timeouts > b.timeouts); break;
+            case 1: CHECK(d.crc_errors > b.crc_errors); break;
+            case 2: CHECK(d.bad_replies > b.bad_replies); break;
+            default: CHECK(d.bad_replies + d.crc_errors + d.timeouts >
+                           b.bad_replies + b.crc_errors + b.timeouts);
+            }
+            /* out of step until a resync read: OFFLINE meanwhile is not a wrong value */
+            for (int i = 0; i < 400 && (rc = t_run(dev, 3, 4, 1, NULL, v, 1)) != 1; i++)
+                t_sleep_ms(50);
+            CHECK_EQ(rc, 1);
+            CHECK_EQ(v[0], 12);
+        }
+    }
 
     /* late replies: reads of one shape from two registers; each value is its own. The
      * delays put the late reply into the retries of its own request, into the silence
