@@ -19,6 +19,7 @@
 #include <signal.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/prctl.h>
 #include <sys/socket.h>
 #include <sys/un.h>
 #include <sys/wait.h>
@@ -39,6 +40,7 @@ static pid_t spawn_ready(char *const argv[], char *line, int n)
         return -1;
     pid = fork();
     if (pid == 0) {
+        prctl(PR_SET_PDEATHSIG, SIGTERM); /* a test that dies leaves no peer behind */
         dup2(fd[1], 1);
         close(fd[0]);
         execvp(argv[0], argv);
