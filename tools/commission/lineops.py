@@ -1,0 +1,229 @@
+"""The commissioning tool's work on a line: scan, backup, differences, restore."""
+from __future__ import annotations
+
+import json
+import os
+import time
+
+import instruments as ins
+from shims import E_EXCEPTION_BASE, E_NOPORT, E_PORTLOST
+
+FACTORY = [(9600, "8N2", "rtu"),     # MV-D94 / VD: 9600 8N2 (manual 2.1, 4.1)
+           (9600, "8E1", "rtu"),     # FDC-100: 9600 8E1 (manual Example 1)
+           (9600, "8N1", "ascii"),   # MT-S9: its manual states no factory line; ASCII first,
+           (9600, "8N1", "rtu")]     #   then RTU (RTU without CRC answers an RTU master too)
+FORMATS = ["8N1", "8N2", "8E1", "8O1", "8E2", "8O2", "7N2", "7E1", "7O1", "7E2", "7O2"]
+MAX_RUN = 32          # words per backup read (the FDC's own limit is uncertain: 79 or 80)
+EXIT_PORT, EXIT_DEVICE = 3, 4
+
+
+class LineError(Exception):
+    """One line for the user and an exit status (see mbcommission.py)."""
+
+    def __init__(self, status: int, text: str):
+        super().__init__(text)
+        self.status = status
+
+
+def all_bauds() -> list:
+    return sorted({b for m in ins.maps().values() for b in m.line["bauds"]})
+
+
+def probe_seconds(baud: int, fmt: str, framing: str) -> float:
+    """Time one probe of an absent address costs: the request, the shims' shortest reply
+    timeout for it (c_shims/src/mbfb_timing.c: 2 x (frames + 10 ms), at least 50 ms)."""
+    bits = 1 + int(fmt[0]) + (fmt[1] != "N") + int(fmt[2])
+    char = bits / baud
+    frames = 8 + 7 if framing != "ascii" else 17 + 15
+    timeout = max(0.05, 2 * (frames * char + 0.01))
+    return 8 * char + timeout + 3.5 * char
+
+
+def settings_to_try(args) -> list:
+    """The line settings of a scan, the factory ones first, narrowed by the options."""
+    full = [(b, f, fr) for fr in ("rtu", "ascii", "nocrc") for b in all_bauds() for f in FORMATS
+            if not (fr != "ascii" and f[0] == "7")]
+    narrowed = args.baud or args.format or args.framing
+    order = FACTORY + ([s for s in full if s not in FACTORY] if args.full or narrowed else [])
+    return [s for s in order if (not args.baud or s[0] in args.baud) and
+            (not args.format or s[1] in [f.upper() for f in args.format]) and
+            (not args.framing or s[2] in args.framing)]
+
+
+def addresses(text: str) -> list:
+    out = []
+    try:
+        for part in text.split(","):
+            lo, _, hi = part.partition("-")
+            out += range(int(lo), int(hi or lo) + 1)
+    except ValueError:
+        raise LineError(2, f"--address {text!r}: expected N, N-M or a comma list") from None
+    if not out or min(out) < 1 or max(out) > 247:
+        raise LineError(2, f"--address {text!r}: addresses are 1..247")
+    return out
+
+
+def check_port(port: str) -> None:
+    if not port.startswith("tcp://") and not os.path.exists(port):
+        raise LineError(EXIT_PORT, f"{port}: no such port")
+
+
+def open_line(lib, port, baud, fmt, framing, retries=-1) -> int:
+    lib.shutdown()
+    bus = lib.open_bus(port, baud, fmt[1], int(fmt[0]), int(fmt[2]), framing, 0, retries)
+    if bus < 0:
+        raise LineError(2, f"{port} at {baud} {fmt} {framing}: {lib.strerror(-bus)}")
+    return bus
+
+
+def reader(lib, dev):
+    def read(fc, addr, count):
+        rc, words = lib.read(dev, fc, addr, count)
+        if rc in (E_NOPORT, E_PORTLOST):
+            raise LineError(EXIT_PORT, f"port: {lib.strerror(rc)}")
+        return rc, words
+    return read
+
+
+def scan(lib, args) -> list:
+    """[((baud, format, framing), Found)] of every instrument that answered."""
+    from tqdm import tqdm
+    check_port(args.port)
+    todo, addrs = settings_to_try(args), addresses(args.address)
+    total = sum(probe_seconds(*s) for s in todo) * len(addrs)
+    print(f"{len(todo)} line setting(s) x {len(addrs)} address(es): at least {total:.0f} s "
+          f"(each silent address costs a request and the shims' shortest reply timeout)")
+    found, seen = [], set()
+    bar = tqdm(total=round(total, 1), unit="s", disable=args.no_progress, leave=False,
+               bar_format="{l_bar}{bar}| {n:.0f}/{total:.0f} s [{elapsed}<{remaining}]")
+    for baud, fmt, framing in todo:
+        bus = open_line(lib, args.port, baud, fmt, framing, retries=0)
+        bar.set_description(f"{baud} {fmt} {framing}")
+        for a in addrs:
+            read = reader(lib, lib.open_device(bus, a))
+            rc, _ = read(3, 0, 1)
+            bar.update(probe_seconds(baud, fmt, framing))
+            if rc != 0 and rc < E_EXCEPTION_BASE:
+                continue
+            f = ins.identify(read, a, baud, fmt, framing)
+            if f is None:
+                f = ins.Found("unknown", a, [f"answered FC03 at 0 ({'exception %d' % (rc - 128) if rc else 'data'});"
+                                             " fits none of MV-D94/VD, MT-S9, FDC-100"], framing=framing)
+                tqdm.write(f"unknown Modbus device at {a}, {baud} {fmt} {framing.upper()}")
+            key = (a, f.kind, baud, f.framing)
+            if key not in seen:
+                seen.add(key)
+                found.append(((baud, fmt, framing), f))
+    bar.close()
+    lib.shutdown()
+    return found
+
+
+def _find(lib, args):
+    """Open the line of args and identify the instrument at args.address:
+    (read, Found, format, device handle)."""
+    check_port(args.port)
+    for fmt in [args.format.upper()] if args.format else ["8N2", "8E1", "8N1"]:
+        bus = open_line(lib, args.port, args.baud, fmt, args.framing)
+        dev = lib.open_device(bus, args.address)
+        read = reader(lib, dev)
+        f = ins.identify(read, args.address, args.baud, fmt, args.framing)
+        if f is not None:
+            return read, f, fmt, dev
+    raise LineError(EXIT_DEVICE, f"none of MV-D94/VD, MT-S9, FDC-100 answers at {args.address}, "
+                    f"{args.baud} {args.format or '8N2/8E1/8N1'} {args.framing.upper()}")
+
+
+def backup(lib, args) -> dict:
+    """Every FC03 register of the instrument at args.address, raw and in engineering units."""
+    read, f, fmt, _ = _find(lib, args)
+    m = ins.maps()[f.kind]
+    regs = ins.readable(f.kind)
+    words, run = {}, []
+    for r in regs + [None]:
+        if run and (r is None or r.addr != run[-1].addr + run[-1].words or
+                    r.addr + r.words - run[0].addr > MAX_RUN):
+            first, n = run[0].addr, run[-1].addr + run[-1].words - run[0].addr
+            rc, w = read(3, first, n)
+            if rc != 0:
+                raise LineError(5, f"{f.model} at {args.address} stopped answering: reading "
+                                f"{first}..{first + n - 1}: {lib.strerror(rc)}")
+            for x in run:
+                words[x.name] = m.decode_words(x, w[x.addr - first:x.addr - first + x.words])
+            run = []
+        if r is not None:
+            run.append(r)
+    state = {k: v for k, v in words.items() if k in ("DP", "INPT", "ALFN")}
+    return {"tool": "mbcommission backup", "kind": f.kind, "model": f.model,
+            "firmware": f.firmware, "identified_by": f.evidence,
+            "line": {"port": args.port, "address": args.address, "baud": args.baud,
+                     "format": f.format or fmt, "framing": f.framing},
+            "saved": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+            "registers": {r.name: ins.describe(f.kind, r, words[r.name], state) for r in regs}}
+
+
+def write_backup(path: str, data: dict) -> None:
+    """JSON with one register per line, in address order: readable and diffable."""
+    head = {k: v for k, v in data.items() if k != "registers"}
+    lines = [f"  {json.dumps(k)}: {json.dumps(v, sort_keys=True)}" for k, v in head.items()]
+    regs = sorted(data["registers"].items(), key=lambda kv: kv[1]["addr"])
+    body = ",\n".join(f"    {json.dumps(k)}: {json.dumps(v, sort_keys=True)}" for k, v in regs)
+    with open(path, "w", encoding="utf-8") as fh:
+        fh.write("{\n" + ",\n".join(lines) + ',\n  "registers": {\n' + body + "\n  }\n}\n")
+
+
+def show(entry: dict) -> str:
+    if "code" in entry:
+        return f"{entry['code']} ({entry['raw']})"
+    return f"{entry.get('value', entry['raw'])} {entry.get('unit', '')}".strip()
+
+
+def differences(have: dict, want: dict) -> list:
+    """[(name, have shown, want shown)] of the restorable settings that differ, restore order."""
+    names = [r.name for r in ins.settings(have["kind"])] + \
+        [ins.LOCK[have["kind"]][0]] * (have["kind"] in ins.LOCK)
+    return [(n, show(have["registers"][n]), show(want["registers"][n])) for n in names
+            if n in want["registers"] and have["registers"][n]["raw"] != want["registers"][n]["raw"]]
+
+
+def restore(lib, args, have: dict, want: dict):
+    """Write what differs, each read back: (written names, None) or (written, (name, error))."""
+    read, f, _, dev = _find(lib, args)
+    m, kind, done = ins.maps()[f.kind], f.kind, []
+
+    def put(name, raw):
+        r = m.reg(name)
+        rc = lib.write(dev, r.addr, raw)
+        if rc == 0:
+            rc, w = read(3, r.addr, 1)
+            if rc == 0 and w[0] != raw & 0xFFFF:
+                return f"read back {w[0]}, not {raw & 0xFFFF}"
+        return None if rc == 0 else lib.strerror(rc)
+
+    rows = differences(have, want)
+    prelude = []                        # access first: unlock, or raise the author level
+    if kind in ins.LOCK and have["registers"][ins.LOCK[kind][0]]["raw"] != ins.LOCK[kind][1]:
+        prelude.append(ins.LOCK[kind])
+    if kind in ins.AUTHOR:
+        prelude.append(ins.AUTHOR[kind])
+    for name, raw in prelude:
+        err = put(name, raw)
+        if err:
+            return done, (name, err)
+    for name, _, _ in rows:
+        err = put(name, want["registers"][name]["raw"])
+        if err:
+            return done, (name, err)
+        done.append(name)
+    if kind in ins.AUTHOR:              # the author level back to what it was
+        name = ins.AUTHOR[kind][0]
+        err = put(name, have["registers"][name]["raw"])
+        if err:
+            return done, (name, err)
+    elif kind in ins.LOCK and ins.LOCK[kind][0] not in done:
+        name = ins.LOCK[kind][0]        # locked before and unchanged by the backup: lock again
+        if have["registers"][name]["raw"] != ins.LOCK[kind][1]:
+            err = put(name, have["registers"][name]["raw"])
+            if err:
+                return done, (name, err)
+    return done, None

@@ -1,0 +1,180 @@
+#!/usr/bin/env python3
+"""mbcommission: find the instruments on a line, back up, compare and restore their settings.
+
+    mbcommission scan PORT [--baud B] [--format 8N1] [--framing rtu] [--address 1-10] [--full]
+    mbcommission backup PORT ADDRESS [line options] -o FILE
+    mbcommission diff A.json B.json        |  mbcommission diff A.json --port P --address N
+    mbcommission restore FILE PORT ADDRESS [line options] [--yes]
+
+The Modbus engine is the project's C shims (the blocks' own), loaded as libmbfb.so. Exit
+statuses: tools/commission/README.md.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import instruments as ins  # noqa: E402
+import lineops  # noqa: E402
+from shims import Shims, ShimsError  # noqa: E402
+
+EXIT_OK, EXIT_DIFFERS, EXIT_USAGE, EXIT_PORT, EXIT_DEVICE, EXIT_PARTIAL, EXIT_FILE, EXIT_LIB = \
+    0, 1, 2, 3, 4, 5, 6, 7
+
+
+class Fail(Exception):
+    """One line for the user and an exit status."""
+
+    def __init__(self, status: int, text: str):
+        super().__init__(text)
+        self.status = status
+
+
+def line_args(p):
+    p.add_argument("--baud", type=int, default=9600)
+    p.add_argument("--format", default=None, help="e.g. 8N2 (default: the model's factory format)")
+    p.add_argument("--framing", default="rtu", choices=["rtu", "ascii", "nocrc"])
+
+
+def parse(argv):
+    p = argparse.ArgumentParser(prog="mbcommission", description=__doc__.split("\n\n")[0])
+    sub = p.add_subparsers(dest="cmd", required=True)
+    s = sub.add_parser("scan", help="find the instruments on a line")
+    s.add_argument("port")
+    s.add_argument("--baud", type=int, action="append", help="only these bauds (repeatable)")
+    s.add_argument("--format", action="append", help="only these formats, e.g. 8N1 (repeatable)")
+    s.add_argument("--framing", action="append", choices=["rtu", "ascii", "nocrc"])
+    s.add_argument("--address", default="1-247", help="N, N-M or a comma list (default 1-247)")
+    s.add_argument("--full", action="store_true", help="after the factory settings, every setting")
+    s.add_argument("--no-progress", action="store_true", help="no progress bar")
+    b = sub.add_parser("backup", help="save every readable setting of one instrument")
+    b.add_argument("port")
+    b.add_argument("address", type=int)
+    line_args(b)
+    b.add_argument("-o", "--output", required=True, help="the backup file (JSON)")
+    d = sub.add_parser("diff", help="settings that differ: two backups, or a backup and a device")
+    d.add_argument("a")
+    d.add_argument("b", nargs="?")
+    d.add_argument("--port")
+    d.add_argument("--address", type=int)
+    line_args(d)
+    r = sub.add_parser("restore", help="write a backup's settings where the device differs")
+    r.add_argument("file")
+    r.add_argument("port")
+    r.add_argument("address", type=int)
+    line_args(r)
+    r.add_argument("--yes", action="store_true", help="write (default: dry run, nothing sent)")
+    args = p.parse_args(argv)
+    if getattr(args, "address", None) is not None and args.cmd != "scan" and \
+            not 1 <= args.address <= 247:
+        p.error(f"address {args.address}: must be 1..247")
+    return args
+
+
+def load_backup(path: str) -> dict:
+    try:
+        with open(path, encoding="utf-8") as fh:
+            data = json.load(fh)
+        if data.get("kind") not in ins.MODELS or not isinstance(data.get("registers"), dict):
+            raise ValueError("not a backup of mbcommission (kind, registers)")
+        return data
+    except OSError as err:
+        raise Fail(EXIT_FILE, f"{path}: {err.strerror}") from None
+    except ValueError as err:
+        raise Fail(EXIT_FILE, f"{path}: does not parse: {err}") from None
+
+
+def print_diff(rows) -> None:
+    for name, old, new in rows:
+        print(f"  {name:<16} {old:>22}  ->  {new}")
+
+
+def cmd_scan(args, lib) -> int:
+    found = lineops.scan(lib, args)
+    if not found:
+        print("no instrument answered")
+        return EXIT_DEVICE
+    print(f"\n{'address':>7}  {'model':<10} {'framing':<6} {'baud':>6}  format  identified by")
+    for (baud, fmt, framing), f in found:
+        print(f"{f.address:>7}  {f.model:<10} {f.framing.upper():<6} {baud:>6}  {f.format or fmt:<6}  "
+              + "; ".join(f.evidence))
+    for (baud, fmt, framing), f in found:
+        if f.kind == "unknown":
+            continue
+        print(f"\n(* {f.model} at {f.address} *)\n" +
+              ins.st_declaration(f, args.port, baud, f.format or fmt))
+    return EXIT_OK
+
+
+def cmd_backup(args, lib) -> int:
+    data = lineops.backup(lib, args)
+    lineops.write_backup(args.output, data)
+    print(f"{data['model']} at {args.address}: {len(data['registers'])} registers -> {args.output}")
+    return EXIT_OK
+
+
+def cmd_diff(args, lib) -> int:
+    a = load_backup(args.a)
+    if args.b:
+        b = load_backup(args.b)
+    elif args.port and args.address:
+        b = lineops.backup(lib, args)
+    else:
+        raise Fail(EXIT_USAGE, "diff needs a second backup, or --port and --address")
+    if a["kind"] != b["kind"]:
+        raise Fail(EXIT_DEVICE, f"{a['model']} and {b['model']}: different models")
+    rows = lineops.differences(a, b)
+    print(f"{len(rows)} setting(s) differ" + (":" if rows else ""))
+    print_diff(rows)
+    return EXIT_DIFFERS if rows else EXIT_OK
+
+
+def cmd_restore(args, lib) -> int:
+    want = load_backup(args.file)
+    have = lineops.backup(lib, args)
+    if have["kind"] != want["kind"]:
+        raise Fail(EXIT_DEVICE, f"the backup is of an {want['model']}, address {args.address} "
+                   f"is an {have['model']}: nothing written")
+    rows = lineops.differences(have, want)
+    print(f"{len(rows)} setting(s) differ" + (":" if rows else ""))
+    print_diff(rows)
+    if not rows:
+        return EXIT_OK
+    if not args.yes:
+        print("dry run: nothing written (--yes writes them)")
+        return EXIT_DIFFERS
+    done, failed = lineops.restore(lib, args, have, want)
+    if failed:
+        name, err = failed
+        left = [n for n, _, _ in rows if n not in done]
+        raise Fail(EXIT_PARTIAL, f"{name} not written ({err}); written: {', '.join(done) or 'none'};"
+                   f" not written: {', '.join(left)}; run again to finish")
+    print(f"restored {len(done)} setting(s), each read back")
+    return EXIT_OK
+
+
+def main(argv=None) -> int:
+    args = parse(argv)
+    try:
+        with Shims.load() as lib:
+            return {"scan": cmd_scan, "backup": cmd_backup, "diff": cmd_diff,
+                    "restore": cmd_restore}[args.cmd](args, lib)
+    except ShimsError as err:
+        print(f"mbcommission: {err}", file=sys.stderr)
+        return EXIT_LIB
+    except ins.mbmap.MapError as err:
+        print(f"mbcommission: {err}", file=sys.stderr)
+        return EXIT_FILE
+    except (Fail, lineops.LineError) as err:
+        print(f"mbcommission: {err}", file=sys.stderr)
+        return err.status
+    except KeyboardInterrupt:
+        print("mbcommission: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

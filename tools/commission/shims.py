@@ -1,0 +1,117 @@
+"""The project's C shims (c_shims/include/mbfb.h) as a Python Modbus master, through ctypes.
+
+The commissioning tool talks to instruments with the same engine as the function blocks: the
+same line timing, reply checks, late-reply rules, confirmed writes and error ids. The shims are
+built for a PLC scan (post, then poll); a command-line tool may wait, so each call here posts one
+request and polls it until the worker has finished it.
+
+    with Shims.load() as lib:
+        bus = lib.open_bus("/dev/ttyUSB0", 9600, "N", 8, 2, "rtu")
+        dev = lib.open_device(bus, 1)
+        rc, words = lib.read(dev, 3, 0, 4)
+"""
+from __future__ import annotations
+
+import ctypes
+import os
+import time
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.dirname(os.path.dirname(HERE))
+LIB_ENV = "MBFB_LIB"
+
+FRAMINGS = {"rtu": 0, "ascii": 1, "nocrc": 2, "tcp": 3}    # MBFB_FRAMING_*
+REQ_DONE, REQ_FAILED = 3, 4                                # MBFB_REQ_*
+WRITE_IDEMPOTENT = 0                                       # MBFB_WRITE_*
+E_TIMEOUT, E_NOPORT, E_PORTLOST, E_CONFLICT, E_BAUD = 1, 5, 6, 9, 14
+E_EXCEPTION_BASE = 128
+MAX_READ = 125
+
+
+class ShimsError(RuntimeError):
+    """The shared library is missing or does not load."""
+
+
+def find_library() -> str:
+    """$MBFB_LIB, else lib/libmbfb.so of the newest build*/ tree of this checkout."""
+    given = os.environ.get(LIB_ENV)
+    if given:
+        if not os.path.isfile(given):
+            raise ShimsError(f"{LIB_ENV}={given}: no such file")
+        return given
+    found = []
+    for name in os.listdir(ROOT):
+        path = os.path.join(ROOT, name, "lib", "libmbfb.so")
+        if name.startswith("build") and os.path.isfile(path):
+            found.append((os.path.getmtime(path), path))
+    if not found:
+        raise ShimsError("the shims' shared library is not built: run "
+                         "'cmake -S . -B build -G Ninja && cmake --build build --target mbfb_shared' "
+                         f"(or set {LIB_ENV})")
+    return max(found)[1]
+
+
+class Shims:
+    """ctypes view of the shims' public API; one instance per process."""
+
+    def __init__(self, path: str):
+        try:
+            self.lib = lib = ctypes.CDLL(path)
+        except OSError as err:
+            raise ShimsError(f"{path}: {err}") from None
+        i, u16p = ctypes.c_int, ctypes.POINTER(ctypes.c_uint16)
+        lib.mbfb_bus_open_args.argtypes = [ctypes.c_char_p] + [i] * 8
+        lib.mbfb_dev_open.argtypes = [i, i]
+        lib.mbfb_post.argtypes = [i, i, i, i, u16p]
+        lib.mbfb_post_write.argtypes = [i, i, i, i, u16p, i]
+        lib.mbfb_poll.argtypes = [i]
+        lib.mbfb_take.argtypes = [i, u16p, i]
+        lib.mbfb_strerror.argtypes = [i]
+        lib.mbfb_strerror.restype = ctypes.c_char_p
+
+    @classmethod
+    def load(cls) -> "Shims":
+        return cls(find_library())
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.shutdown()
+
+    def shutdown(self):
+        """Stop every bus worker and close every port (a new line setting needs a new bus)."""
+        self.lib.mbfb_shutdown()
+
+    def strerror(self, code: int) -> str:
+        return self.lib.mbfb_strerror(code).decode()
+
+    def open_bus(self, port: str, baud: int, parity: str, data_bits: int, stop_bits: int,
+                 framing: str, timeout_ms: int = 0, retries: int = -1) -> int:
+        """A bus handle >= 0, or a negative -MBFB_E_* (bad settings: nothing is opened)."""
+        raw = port.encode()
+        return self.lib.mbfb_bus_open_args(raw, len(raw), baud, ord(parity), data_bits,
+                                           stop_bits, FRAMINGS[framing], timeout_ms, retries)
+
+    def open_device(self, bus: int, slave: int) -> int:
+        return self.lib.mbfb_dev_open(bus, slave)
+
+    def _wait(self, req: int, count: int) -> tuple[int, list]:
+        """Poll a posted request until it ends: (0, words) or (positive MBFB_E_*, [])."""
+        if req < 0:
+            return -req, []
+        while self.lib.mbfb_poll(req) not in (REQ_DONE, REQ_FAILED):
+            time.sleep(0.0005)
+        buf = (ctypes.c_uint16 * MAX_READ)()
+        rc = self.lib.mbfb_take(req, buf, MAX_READ)
+        return (0, list(buf[:count])) if rc >= 0 else (-rc, [])
+
+    def read(self, dev: int, fc: int, addr: int, count: int) -> tuple[int, list]:
+        """FC03/FC04: (0, the words) or (MBFB_E_* / 128 + exception code, [])."""
+        buf = (ctypes.c_uint16 * 1)()
+        return self._wait(self.lib.mbfb_post(dev, fc, addr, count, buf), count)
+
+    def write(self, dev: int, addr: int, value: int) -> int:
+        """FC06, confirmed by the shims (an echo in step, or a read-back): 0 or MBFB_E_*."""
+        buf = (ctypes.c_uint16 * 1)(value & 0xFFFF)
+        return self._wait(self.lib.mbfb_post_write(dev, 6, addr, 1, buf, WRITE_IDEMPOTENT), 0)[0]
