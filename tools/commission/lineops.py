@@ -180,8 +180,8 @@ def show(entry: dict) -> str:
 
 def differences(have: dict, want: dict) -> list:
     """[(name, have shown, want shown)] of the restorable settings that differ, restore order."""
-    names = [r.name for r in ins.settings(have["kind"])] + \
-        [ins.LOCK[have["kind"]][0]] * (have["kind"] in ins.LOCK)
+    lock = [ins.LOCK[have["kind"]][0]] if have["kind"] in ins.LOCK else []
+    names = [r.name for r in ins.settings(have["kind"])] + lock
     return [(n, show(have["registers"][n]), show(want["registers"][n])) for n in names
             if n in want["registers"] and have["registers"][n]["raw"] != want["registers"][n]["raw"]]
 

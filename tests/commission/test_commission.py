@@ -1,0 +1,155 @@
+"""mbcommission (tools/commission) against the simulator and a pymodbus peer: scan finds exactly
+the instruments on a line, backup/restore/diff round trips, dry runs put no write on the wire, a
+device lost mid-restore is reported and a second run finishes, another model is refused."""
+import json
+import os
+import subprocess
+import sys
+import threading
+import time
+
+import pytest
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.dirname(os.path.dirname(HERE))
+sys.path.insert(0, os.path.join(ROOT, "tools", "sim"))
+from simctl import Simulator  # noqa: E402
+
+TOOL = os.path.join(ROOT, "tools", "commission", "mbcommission.py")
+PEER = os.path.join(ROOT, "tests", "shims", "pymodbus_peer.py")
+
+
+def tool(*args):
+    return subprocess.run([sys.executable, TOOL, *map(str, args)], capture_output=True,
+                          text=True, timeout=300)
+
+
+def writes(sim):
+    """Requests with FC06/FC16 the simulator received since the log was cleared."""
+    log = sim.control({"op": "log"})["frames"]
+    return [f for f in log if f["dir"] == "rx" and f["hex"].split()[1] in ("06", "10")]
+
+
+def test_scan_finds_exactly_the_instruments(tmp_path):
+    """Non-factory addresses and bauds on one line, and one answer that fits no map."""
+    devices = ["mvd94:7:SV=120.0,DP=1,BAUD=19.2K", "fdc100:12:SP1=150.0",
+               "mts9:21:Baud Rate Set=4", "fdc100:5"]
+    with Simulator(devices, baud=9600, fmt="8N2") as sim:
+        sim.control({"op": "set", "addr": 5, "reg": "PROG", "raw": 9901})  # no such model
+        r = tool("scan", sim.port, "--address", "1-25", "--baud", 9600, "--baud", 19200,
+                 "--format", "8N2", "--framing", "rtu", "--no-progress")
+    assert r.returncode == 0, r.stderr
+    rows = [line.split() for line in r.stdout.splitlines() if line[:7].strip().isdigit()]
+    got = sorted((int(x[0]), x[1], x[3]) for x in rows)
+    assert got == [(5, "unknown", "9600"), (7, "MV-D94/VD", "19200"), (12, "FDC-100", "9600"),
+                   (21, "MT-S9", "19200")], r.stdout
+    assert "unknown Modbus device at 5, 9600 8N2 RTU" in r.stdout + r.stderr
+    assert "PROG(71)=610 -> BTC-9100" in r.stdout          # the registers that made it
+    assert "mvd94_7 : TempCtrl_MVD94;" in r.stdout and "Baud := 19200" in r.stdout
+
+
+def test_scan_finds_an_ascii_mts9():
+    """An MT-S9 speaking ASCII (the simulator carries one framing per line: its own line)."""
+    with Simulator(["mts9:3:framing=ascii"], baud=9600, fmt="8N1") as sim:
+        r = tool("scan", sim.port, "--address", "1-5", "--no-progress")
+    assert r.returncode == 0, r.stderr
+    assert any(x.split()[:3] == ["3", "MT-S9", "ASCII"] for x in r.stdout.splitlines()), r.stdout
+    assert "Framing := 'ASCII'" in r.stdout
+
+
+@pytest.mark.parametrize("source,target,first", [
+    ("mvd94:1:SV=120.0,DP=1,TYPE=J,HILT=300.0,A1SP=5.0", "mvd94:2", "TYPE"),
+    ("mts9:1:Decimal Set=2", "mts9:2", "Decimal Set")])
+def test_backup_restore_then_diff_is_empty(tmp_path, source, target, first):
+    a = tmp_path / "a.json"
+    with Simulator([source, target], baud=9600, fmt="8N2") as sim:
+        assert tool("backup", sim.port, 1, "-o", a).returncode == 0
+        data = json.loads(a.read_text())
+        assert data["registers"][first]["raw"] != 0 or first == "TYPE"
+        before = tool("diff", a, "--port", sim.port, "--address", 2)
+        assert before.returncode == 1 and first in before.stdout, before.stdout
+        sim.control({"op": "log", "clear": True})
+        dry = tool("restore", a, sim.port, 2)                  # default: a dry run
+        assert dry.returncode == 1 and "dry run" in dry.stdout
+        assert writes(sim) == []                               # nothing on the wire
+        done = tool("restore", a, sim.port, 2, "--yes")
+        assert done.returncode == 0, done.stdout + done.stderr
+        after = tool("diff", a, "--port", sim.port, "--address", 2)
+        assert after.returncode == 0 and "0 setting(s) differ" in after.stdout, after.stdout
+
+
+def test_device_lost_mid_restore_then_a_second_run_finishes(tmp_path):
+    a = tmp_path / "a.json"
+    src = "mvd94:1:SV=120.0,SPOF=1.0,PVOF=2.0,A1SP=3.0,A2SP=4.0,A3SP=5.0,PB=7.0,TD=40,CT=30"
+    with Simulator([src, "mvd94:2"], baud=9600, fmt="8N2") as sim:
+        assert tool("backup", sim.port, 1, "-o", a).returncode == 0
+        sim.control({"op": "log", "clear": True})
+        stop = threading.Event()
+
+        def pull_the_plug():             # offline once the second write is on the wire
+            while not stop.is_set() and len(writes(sim)) < 2:
+                time.sleep(0.002)
+            sim.control({"op": "offline", "addr": 2, "on": True})
+        t = threading.Thread(target=pull_the_plug)
+        t.start()
+        r = tool("restore", a, sim.port, 2, "--yes")
+        stop.set()
+        t.join()
+        assert r.returncode == 5, r.stdout + r.stderr
+        line = r.stderr.strip().splitlines()[-1]
+        assert "written: " in line and "not written: " in line and "run again" in line
+        assert "written: none" not in line, line               # it stopped mid-way
+        sim.control({"op": "offline", "addr": 2, "on": False})
+        again = tool("restore", a, sim.port, 2, "--yes")
+        assert again.returncode == 0, again.stdout + again.stderr
+        assert tool("diff", a, "--port", sim.port, "--address", 2).returncode == 0
+
+
+def test_another_models_backup_is_refused_before_any_write(tmp_path):
+    a = tmp_path / "fdc.json"
+    with Simulator(["fdc100:1:SP1=150.0", "mvd94:2"], baud=9600, fmt="8N2") as sim:
+        assert tool("backup", sim.port, 1, "--format", "8N2", "-o", a).returncode == 0
+        sim.control({"op": "log", "clear": True})
+        r = tool("restore", a, sim.port, 2, "--yes")
+        assert r.returncode == 4 and "nothing written" in r.stderr, r.stderr
+        assert writes(sim) == []
+
+
+def test_bad_input_gets_one_line_and_its_status(tmp_path):
+    bad = tmp_path / "bad.json"
+    bad.write_text("{not json")
+    r = tool("diff", bad, bad)
+    assert r.returncode == 6 and len(r.stderr.strip().splitlines()) == 1, r.stderr
+    r = tool("backup", tmp_path / "no-such-port", 1, "-o", tmp_path / "x.json")
+    assert r.returncode == 3 and "no such port" in r.stderr
+    r = tool("scan", tmp_path, "--address", "0-3")
+    assert r.returncode == 2 and "1..247" in r.stderr and "Traceback" not in r.stderr
+    with Simulator(["mvd94:1"], baud=9600, fmt="8N2") as sim:
+        r = tool("backup", sim.port, 9, "-o", tmp_path / "x.json")
+    assert r.returncode == 4 and "answers at 9" in r.stderr
+
+
+def test_restore_onto_pymodbus_read_back_by_pymodbus(tmp_path):
+    """An independent peer: pymodbus holding an MV-D94's map (RTU over TCP), read back with a
+    pymodbus client register by register."""
+    from pymodbus import FramerType
+    from pymodbus.client import ModbusTcpClient
+    a = tmp_path / "a.json"
+    with Simulator(["mvd94:1:SV=150.0,DP=1,A1SP=2.5,PB=12.0"], baud=9600, fmt="8N2") as sim:
+        assert tool("backup", sim.port, 1, "-o", a).returncode == 0
+    peer = subprocess.Popen([sys.executable, PEER, "rtu-tcp", "mvd94"], stdout=subprocess.PIPE,
+                            text=True)
+    try:
+        port = int(peer.stdout.readline().split()[1])
+        r = tool("restore", a, f"tcp://127.0.0.1:{port}", 1, "--yes")
+        assert r.returncode == 0, r.stdout + r.stderr
+        want = json.loads(a.read_text())["registers"]
+        client = ModbusTcpClient("127.0.0.1", port=port, framer=FramerType.RTU)
+        assert client.connect()
+        for name in ("SV", "DP", "A1SP", "PB", "LOLT", "HILT"):
+            got = client.read_holding_registers(want[name]["addr"], count=1, slave=1)
+            assert not got.isError() and got.registers[0] == want[name]["raw"] & 0xFFFF, name
+        client.close()
+    finally:
+        peer.terminate()
+        peer.wait(timeout=10)
