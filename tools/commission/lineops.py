@@ -8,10 +8,12 @@ import time
 import instruments as ins
 from shims import E_EXCEPTION_BASE, E_NOPORT, E_PORTLOST
 
+# The manuals' factory line settings. A UART checks one stop bit only, so the 8N2 probe also
+# reaches 8N1 devices; the MT-S9's manual states no factory line: 9600 in ASCII (its RTU and
+# RTU-without-CRC units answer the 8N2 RTU probe).
 FACTORY = [(9600, "8N2", "rtu"),     # MV-D94 / VD: 9600 8N2 (manual 2.1, 4.1)
            (9600, "8E1", "rtu"),     # FDC-100: 9600 8E1 (manual Example 1)
-           (9600, "8N1", "ascii"),   # MT-S9: its manual states no factory line; ASCII first,
-           (9600, "8N1", "rtu")]     #   then RTU (RTU without CRC answers an RTU master too)
+           (9600, "8N1", "ascii")]   # MT-S9 in ASCII
 FORMATS = ["8N1", "8N2", "8E1", "8O1", "8E2", "8O2", "7N2", "7E1", "7O1", "7E2", "7O2"]
 MAX_RUN = 32          # words per backup read (the FDC's own limit is uncertain: 79 or 80)
 EXIT_PORT, EXIT_DEVICE = 3, 4
