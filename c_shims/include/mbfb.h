@@ -69,14 +69,25 @@ extern "C" {
 #define MBFB_E_BAUD         14  /* baud rate the serial driver cannot set exactly        */
 #define MBFB_E_EXCEPTION_BASE 128 /* + Modbus exception code                          */
 /* Function-block input errors (st_src/): found before anything is sent.              */
-#define MBFB_E_BAD_SLAVE     200 /* SlaveId 0 for a read/monitoring block, or > 247     */
-#define MBFB_E_NO_PORT_NAME  201 /* Port string empty                                   */
-#define MBFB_E_RANGE         202 /* set point / value out of its documented range       */
-#define MBFB_E_UNKNOWN_CODE  203 /* unknown index/alarm/baud/protocol/decimal code      */
-#define MBFB_E_NOT_ALLOWED   204 /* command not allowed in the device's current mode    */
-#define MBFB_E_NOT_READY     205 /* limits/scaling needed for the check not yet known   */
-#define MBFB_E_BAD_REQUEST   206 /* register request invalid (fc, count, address)       */
-#define MBFB_E_BAD_LINE      207 /* line settings invalid (data/stop bits, baud, timeout) */
+#define MBFB_E_BAD_SLAVE     200 /* SlaveId 0 for a read/monitoring block, or > 247       */
+#define MBFB_E_NO_PORT_NAME  201 /* Port empty or only spaces                             */
+#define MBFB_E_RANGE         202 /* set point / value out of its range (LOLT..HILT,
+                                     SP1L..SP1H, alarm +-1000 counts, MV1 0..100 %,
+                                     an MT-S9 set-up value)                             */
+#define MBFB_E_UNKNOWN_CODE  203 /* unknown code: alarm number, MT-S9 baud/protocol code;
+                                     from the device: DP / Decimal Set outside its table
+                                     (the refresh fails)                                */
+#define MBFB_E_NOT_ALLOWED   204 /* command not allowed now: FDC MV1 outside manual mode,
+                                     an MT-S9 set-up register above the Author level    */
+#define MBFB_E_NOT_READY     205 /* the limits/scaling the check needs are not known, or
+                                     stale (no valid refresh yet)                       */
+#define MBFB_E_BAD_REQUEST   206 /* register request invalid: function not 3/4/6/16, count
+                                     0 or above 125 (read) / 123 (FC16), address + count
+                                     above 65536                                        */
+#define MBFB_E_BAD_LINE      207 /* line settings invalid: unknown Parity or Framing, TCP
+                                     framing on a serial port, ASCII/NOCRC on tcp://, data
+                                     bits not 8 (7 only with ASCII), stop bits not 1/2,
+                                     baud <= 0, timeout < 0                             */
 #define MBFB_E_NOT_ENABLED   208 /* command on a device block whose Enable is FALSE     */
 
 /* ---- setup ---------------------------------------------------------------- */
