@@ -66,7 +66,8 @@ extern "C" {
 #define MBFB_E_NOMEM        12  /* setup could not allocate / too many buses/devices  */
 #define MBFB_E_UNCONFIRMED  13  /* write outcome unknown: no valid reply and the read-back
                                    did not show the value; not repeated (mbfb_post_write) */
-#define MBFB_E_BAUD         14  /* baud rate the serial driver cannot set exactly        */
+#define MBFB_E_BAUD         14  /* baud rate the serial driver cannot set exactly (when
+                                   the port opens), or above 4000000 (mbfb_bus_open)    */
 #define MBFB_E_EXCEPTION_BASE 128 /* + Modbus exception code                          */
 /* Function-block input errors (st_src/): found before anything is sent.              */
 #define MBFB_E_BAD_SLAVE     200 /* SlaveId 0 for a read/monitoring block, or > 247       */
@@ -107,8 +108,10 @@ typedef struct mbfb_bus_config {
 /** Open (or join) the bus on cfg->port. A serial port is identified by the device it
  *  opens (realpath, then st_rdev of the node), so '/dev/serial/by-id/...', '//dev/x' or a
  *  symlink join the same bus. Returns a bus handle >= 0, or -MBFB_E_CONFLICT if that port
- *  is already open with other settings, -MBFB_E_BAUD for a baud the serial driver cannot
- *  set exactly, -MBFB_E_INVAL for other bad settings. */
+ *  is already open with other settings, -MBFB_E_BAUD for a baud above 4000000, -MBFB_E_INVAL
+ *  for other bad settings. Any other baud is set exactly when the worker opens the port
+ *  (termios2 where libmodbus has no constant); a driver that cannot set it ends the bus's
+ *  requests and plans with MBFB_E_BAUD. */
 int mbfb_bus_open(const mbfb_bus_config_t *cfg);
 
 /** Same as mbfb_bus_open with flat arguments; port need not be NUL-terminated

@@ -45,8 +45,8 @@ int mbfb_errno_to_err(int err)
 }
 
 /* The speeds _modbus_rtu_connect() maps to a termios B* constant on Linux, in
- * libmodbus 3.1.6 and in OpenPLC's 3.1.2-based fork alike; any other value is set as
- * B9600 without an error (README "Port identity and baud"). */
+ * libmodbus 3.1.6 and in OpenPLC's 3.1.2-based fork alike; any other value it sets as
+ * B9600 without an error, so mbfb_lm_serial_open sets those with termios2 afterwards. */
 int mbfb_lm_baud_ok(int baud)
 {
     static const int speeds[] = {110,     300,     600,     1200,    2400,    4800,
@@ -81,12 +81,19 @@ static int lm_connect(mbfb_bus_t *bus, modbus_t *ctx)
     return 0;
 }
 
-/* Open and configure the serial port with libmodbus (every serial framing). */
+/* Open and configure the serial port with libmodbus (every serial framing); a baud outside
+ * libmodbus's table (which it would silently run at 9600) is then set exactly with termios2
+ * (mbfb_baud.c): a driver that cannot set it closes the port again with -MBFB_E_BAUD. */
 int mbfb_lm_serial_open(mbfb_bus_t *bus)
 {
     const mbfb_bus_config_t *c = &bus->cfg;
-    return lm_connect(bus, modbus_new_rtu(c->port, c->baud, c->parity, c->data_bits,
-                                          c->stop_bits));
+    int rc = lm_connect(bus, modbus_new_rtu(c->port, c->baud, c->parity, c->data_bits,
+                                            c->stop_bits));
+    if (rc == 0 && !mbfb_lm_baud_ok(c->baud) && mbfb_serial_set_baud(bus->fd, c->baud) < 0) {
+        mbfb_lm_close(bus);
+        return -MBFB_E_BAUD;
+    }
+    return rc;
 }
 
 /* "tcp://host:port" -> modbus_new_tcp_pi(host, port) (getaddrinfo: names and IPv6). */

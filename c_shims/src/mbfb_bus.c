@@ -76,8 +76,8 @@ static int normalise(mbfb_bus_config_t *c)
         (c->stop_bits != 1 && c->stop_bits != 2) ||
         (c->data_bits != 8 && !(c->data_bits == 7 && c->framing == MBFB_FRAMING_ASCII)))
         return MBFB_E_INVAL; /* RTU is binary: 8 data bits */
-    if (!is_tcp(c->port) && !mbfb_lm_baud_ok(c->baud)) /* RTU over TCP: timing only */
-        return MBFB_E_BAUD; /* libmodbus would run the port at 9600 instead */
+    if (c->baud > MBFB_MAX_BAUD)
+        return MBFB_E_BAUD; /* any other rate is set exactly when the port opens (or 14) */
     return 0;
 }
 

@@ -25,6 +25,7 @@ extern "C" {
 #define MBFB_MAX_WRITE     123  /* FC16 registers per request                     */
 #define MBFB_FRAME_MAX     256  /* slave + PDU (253) + 2 check bytes              */
 #define MBFB_MAX_SLAVE     247  /* serial addresses 1..247, 0 = broadcast         */
+#define MBFB_MAX_BAUD      4000000 /* the fastest rate a Linux UART driver offers    */
 #define MBFB_MAX_UNIT      255  /* Modbus TCP unit identifiers                    */
 #define MBFB_ADDR_SPACE    0x10000 /* register addresses 0..0xFFFF                 */
 
@@ -152,6 +153,9 @@ void mbfb_lm_close(struct mbfb_bus *bus);
 int  mbfb_errno_to_err(int err);
 /** 1 if libmodbus's RTU backend sets `baud` exactly (its speed table), else 0. */
 int  mbfb_lm_baud_ok(int baud);
+/** Set `baud` exactly on an open serial port with termios2/BOTHER and read it back
+ *  (mbfb_baud.c): 0, or -MBFB_E_BAUD when the driver refuses it or sets another rate. */
+int  mbfb_serial_set_baud(int fd, int baud);
 
 /* serial helpers (mbfb_serial.c) */
 /** The watched silence of every serial framing (see mbfb_backend_t.quiet). */

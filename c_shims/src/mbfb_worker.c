@@ -420,11 +420,11 @@ static void port_lost(mbfb_bus_t *bus, mbfb_dev_t *dev)
     mbfb_slot_fail_queued(bus, MBFB_E_PORTLOST);
 }
 
-/* The port could not be opened: every running plan of the bus ends its refresh now
- * with MBFB_E_NOPORT (one failed snapshot each, in this one pass), and none is due
- * again before bus->reopen_us, so the bus tries open() once per probe interval
- * whatever the number of plans. */
-static void plans_no_port(mbfb_bus_t *bus, int64_t now)
+/* The port could not be opened (`err`: MBFB_E_NOPORT, or MBFB_E_BAUD for a rate the
+ * driver cannot set): every running plan of the bus ends its refresh now with `err` (one
+ * failed snapshot each, in this one pass), and none is due again before bus->reopen_us, so
+ * the bus tries open() once per probe interval whatever the number of plans. */
+static void plans_no_port(mbfb_bus_t *bus, int64_t now, int err)
 {
     int n = __atomic_load_n(&bus->n_plans, __ATOMIC_ACQUIRE);
     uint16_t words[MBFB_PLAN_MAX_WORDS];
@@ -440,8 +440,8 @@ static void plans_no_port(mbfb_bus_t *bus, int64_t now)
         for (int k = 0; k < ni; k++)
             nwords += items[k].count;
         p->last_start_us = now;
-        set_error(mbfb_devs[p->dev], MBFB_E_NOPORT);
-        mbfb_plan_publish(p, MBFB_E_NOPORT, __atomic_load_n(&p->inval_gen, __ATOMIC_ACQUIRE),
+        set_error(mbfb_devs[p->dev], err);
+        mbfb_plan_publish(p, err, __atomic_load_n(&p->inval_gen, __ATOMIC_ACQUIRE),
                           0u, words, nwords);
     }
 }
@@ -456,13 +456,14 @@ static int device_request(mbfb_bus_t *bus, op_t *op)
         set_error(dev, MBFB_E_OFFLINE);
         return MBFB_E_OFFLINE;
     }
-    if (bus->fd < 0 && bus->be->open(bus) < 0) {
+    if (bus->fd < 0 && (rc = bus->be->open(bus)) < 0) {
         /* plans try again only after a probe interval: no spinning on open() */
         int64_t now = mbfb_now_us();
+        int err = rc == -MBFB_E_BAUD ? MBFB_E_BAUD : MBFB_E_NOPORT;
         bus->reopen_us = now + (int64_t)MBFB_PROBE_FIRST_MS * 1000;
-        set_error(dev, MBFB_E_NOPORT);
-        plans_no_port(bus, now); /* the caller's plan included: it publishes nothing */
-        return MBFB_E_NOPORT;
+        set_error(dev, err);
+        plans_no_port(bus, now, err); /* the caller's plan included: it publishes nothing */
+        return err;
     }
     if (!bus->be->needs_resync)
         dev->in_step = 1;
@@ -601,8 +602,8 @@ static void run_refresh(mbfb_bus_t *bus, mbfb_plan_t *p)
         op.count = items[i].count;
         op.out = words + nwords;
         rc = device_request(bus, &op);
-        if (rc == MBFB_E_NOPORT)
-            return; /* published with every plan of the bus (plans_no_port) */
+        if (rc == MBFB_E_NOPORT || rc == MBFB_E_BAUD)
+            return; /* the port did not open: published with every plan (plans_no_port) */
         if (rc != MBFB_OK) {
             result = rc;
             break;

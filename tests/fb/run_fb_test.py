@@ -52,6 +52,8 @@ def main() -> int:
     ap.add_argument("--exe")
     ap.add_argument("--st")
     ap.add_argument("--skip")
+    ap.add_argument("--baud", type=int, help="the line's baud instead of the @SIM header's "
+                    "(the program reads it as MBFB_TEST_BAUD: T_BAUD)")
     ap.add_argument("--timeout", type=float, default=400.0)
     args = ap.parse_args()
     if args.skip is not None:
@@ -63,6 +65,8 @@ def main() -> int:
     from simctl import Simulator  # tools/sim/simctl.py
 
     spec = sim_spec(args.st)
+    if args.baud:
+        spec["baud"] = args.baud
     if spec["transport"] == "pymodbus-mvd94":
         return run_pymodbus(args)
     tmp = tempfile.mkdtemp(prefix="fbtest-")
@@ -73,7 +77,8 @@ def main() -> int:
                        time_scale=float(spec["time-scale"]), transport=spec["transport"],
                        link=link if pty else None) as sim:
             port = link if pty else f"tcp://{sim.tcp[0]}:{sim.tcp[1]}"
-            env = dict(os.environ, MBFB_TEST_PORT=port, MBFB_SIM_CONTROL=sim.control_path)
+            env = dict(os.environ, MBFB_TEST_PORT=port, MBFB_SIM_CONTROL=sim.control_path,
+                       MBFB_TEST_BAUD=str(spec["baud"]))
             try:
                 proc = subprocess.run([args.exe], env=env, timeout=args.timeout)
                 rc = proc.returncode

@@ -561,12 +561,12 @@ static void port_identity(void)
     bus = mbfb_bus_open(&c);
     c.port = "/nonexistent/./ttyX0";
     CHECK_EQ(mbfb_bus_open(&c), bus);
-    /* bauds libmodbus would silently run at 9600 */
-    c = t_cfg(P.link, 12345, MBFB_FRAMING_RTU, 0, -1);
+    /* a rate no Linux UART driver offers is refused before anything opens; the others
+     * (also those outside libmodbus's table, set with termios2: test_baud.py) are accepted */
+    c = t_cfg(P.link, 4000001, MBFB_FRAMING_RTU, 0, -1);
     CHECK_EQ(mbfb_bus_open(&c), -MBFB_E_BAUD);
-    c.baud = 14400;
-    CHECK_EQ(mbfb_bus_open(&c), -MBFB_E_BAUD);
-    CHECK_EQ(mbfb_bus_open_args("/dev/ttyS9", 10, 12345, 0, 8, 1, 0, 0, -1), -MBFB_E_BAUD);
+    CHECK_EQ(mbfb_bus_open_args("/dev/ttyS9", 10, 4000001, 0, 8, 1, 0, 0, -1), -MBFB_E_BAUD);
+    CHECK(mbfb_bus_open_args("/dev/ttyS9", 10, 28800, 0, 8, 1, 0, 0, -1) >= 0);
     CHECK(strstr(mbfb_strerror(-MBFB_E_BAUD), "baud") != NULL);
     CHECK(strstr(mbfb_strerror(MBFB_E_UNCONFIRMED), "unconfirmed") != NULL);
     unlink(alias);

@@ -9,8 +9,10 @@ offers none of these hooks (its RTU framer even warns it does not support multid
 from __future__ import annotations
 
 import asyncio
+import fcntl
 import os
 import random
+import struct
 import termios
 import tty
 
@@ -22,6 +24,25 @@ BAUD_CONST = {b: getattr(termios, f"B{b}") for b in (
     50, 75, 110, 134, 150, 200, 300, 600, 1200, 1800, 2400, 4800, 9600, 19200, 38400, 57600,
     115200, 230400, 460800, 500000, 576000, 921600, 1000000) if hasattr(termios, f"B{b}")}
 SPEED_BAUD = {v: k for k, v in BAUD_CONST.items()}
+# Any other rate (the MT-S9's 14400, 28800, 76800): Linux's termios2 with BOTHER, the speed
+# itself in c_ispeed/c_ospeed. struct termios2: 4 flag words, c_line, c_cc[19], then the two
+# speeds (44 bytes); TCGETS2 = _IOR('T', 0x2A, termios2), TCSETS2 = _IOW('T', 0x2B, termios2).
+TCGETS2, TCSETS2, BOTHER, CBAUD = 0x802C542A, 0x402C542B, 0o010000, 0o010017
+TERMIOS2 = struct.Struct("=4I B 19s 2I")
+
+
+def get_speed(fd: int) -> int:
+    """The output speed of a tty in baud, also one set with BOTHER (termios2)."""
+    fields = TERMIOS2.unpack(fcntl.ioctl(fd, TCGETS2, bytes(TERMIOS2.size)))
+    return fields[7]
+
+
+def set_speed(fd: int, baud: int) -> None:
+    """Set any speed on a tty with termios2/BOTHER (input and output)."""
+    iflag, oflag, cflag, lflag, line, cc, _, _ = TERMIOS2.unpack(
+        fcntl.ioctl(fd, TCGETS2, bytes(TERMIOS2.size)))
+    cflag = (cflag & ~(CBAUD | CBAUD << 16)) | BOTHER | BOTHER << 16
+    fcntl.ioctl(fd, TCSETS2, TERMIOS2.pack(iflag, oflag, cflag, lflag, line, cc, baud, baud))
 
 
 class SerialLine:
@@ -77,6 +98,8 @@ class SerialLine:
             else:
                 attrs[2] &= ~termios.CSTOPB
             termios.tcsetattr(self.slave_fd, termios.TCSANOW, attrs)
+            if speed is None:
+                set_speed(self.slave_fd, self.line.baud)
             self.path = os.ttyname(self.slave_fd)
             self._relink()
         else:
@@ -253,10 +276,9 @@ class SerialLine:
         if self.device is not None or self.ptyline is not None or self.fd is None:
             return None
         try:
-            attrs = termios.tcgetattr(self.fd)
-        except termios.error:
+            return {"baud": get_speed(self.fd)}
+        except OSError:
             return None
-        return {"baud": SPEED_BAUD.get(attrs[5], -1)}
 
     # ----- transmit: whole frame, or paced at the character time with a turnaround -----
     def line_stats(self) -> dict:
