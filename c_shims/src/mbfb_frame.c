@@ -113,3 +113,68 @@ int mbfb_check_args(int slave, int fc, int addr, int count, const uint16_t *valu
     }
     return addr + count > MBFB_ADDR_SPACE ? MBFB_E_INVAL : MBFB_OK;
 }
+
+/* Value of an upper- or lower-case hex digit, or -1. */
+static int hex_digit(int c)
+{
+    if (c >= '0' && c <= '9')
+        return c - '0';
+    if (c >= 'A' && c <= 'F')
+        return c - 'A' + 10;
+    if (c >= 'a' && c <= 'f')
+        return c - 'a' + 10;
+    return -1;
+}
+
+/* Length of a whole reply frame (slave + PDU + CRC) starting at b (n bytes there), from its
+ * function code and byte count; 0 if it is not one or not complete. */
+static int rtu_reply_len(const uint8_t *b, int n)
+{
+    int len;
+    if (n < 5)
+        return 0;
+    if (b[1] & 0x80)
+        len = 5;
+    else if (b[1] == 3 || b[1] == 4)
+        len = 3 + b[2] + 2;
+    else if (b[1] == 6 || b[1] == 16)
+        len = 8;
+    else
+        return 0;
+    return len <= n ? len : 0;
+}
+
+int mbfb_next_reply(int framing, const uint8_t *buf, int n, int *pos, uint8_t *frame)
+{
+    while (*pos < n) {
+        const uint8_t *b = buf + *pos;
+        int left = n - *pos, len;
+        if (framing == MBFB_FRAMING_ASCII) {
+            int k = 1, m = 0;
+            if (b[0] != ':') {
+                (*pos)++;
+                continue;
+            }
+            while (k + 1 < left && hex_digit(b[k]) >= 0 && hex_digit(b[k + 1]) >= 0 &&
+                   m < MBFB_FRAME_MAX) {
+                frame[m++] = (uint8_t)(hex_digit(b[k]) << 4 | hex_digit(b[k + 1]));
+                k += 2;
+            }
+            if (k + 1 < left && b[k] == '\r' && b[k + 1] == '\n' && m >= 3 &&
+                mbfb_lrc(frame, m - 1) == frame[m - 1]) {
+                *pos += k + 2;
+                return m - 1;
+            }
+            (*pos)++;
+            continue;
+        }
+        len = rtu_reply_len(b, left);
+        if (len > 0 && mbfb_crc16(b, len - 2) == (uint16_t)(b[len - 2] | b[len - 1] << 8)) {
+            memcpy(frame, b, (size_t)(len - 2));
+            *pos += len;
+            return len - 2;
+        }
+        (*pos)++;
+    }
+    return 0;
+}

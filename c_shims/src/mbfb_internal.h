@@ -37,6 +37,8 @@ extern "C" {
 #define MBFB_MAX_PLANS     (MBFB_MAX_BUSES * MBFB_PLANS_PER_BUS)
 #define MBFB_OUTSTANDING_MAX 32 /* reply shapes of failed attempts kept per device */
 #define MBFB_KNOWN_READS   4    /* ranges that read well, remembered per device    */
+#define MBFB_HEARD_MAX     520  /* bytes heard before a request kept for late replies:
+                                   one ASCII frame of 256 bytes (':', hex, CR LF)    */
 
 /* ---- policy ----------------------------------------------------------------- */
 #define MBFB_DEFAULT_RETRIES 3  /* SetPro manual 5.6: retry at least 3 times      */
@@ -78,6 +80,12 @@ int mbfb_reply_len(const uint8_t *req);
  *  are then at rsp+3), MBFB_E_EXCEPTION_BASE + code for an exception reply, or
  *  MBFB_E_BADREPLY. */
 int mbfb_check_reply(const uint8_t *req, const uint8_t *rsp, int len);
+
+/** The next whole, checked reply frame in bytes heard on the line (buf[*pos..n)): a
+ *  frame with a good CRC (RTU, RTU without CRC: replies carry one) or a ':' hex LRC CR LF
+ *  frame (ASCII). Copies it (slave + PDU) into frame, moves *pos past it and returns its
+ *  length; 0 when there is none (*pos = n). */
+int mbfb_next_reply(int framing, const uint8_t *buf, int n, int *pos, uint8_t *frame);
 
 /** Validate post arguments; 0 or MBFB_E_INVAL. */
 int mbfb_check_args(int slave, int fc, int addr, int count, const uint16_t *values);
@@ -288,6 +296,10 @@ typedef struct mbfb_bus {
                                 timeout of a failed attempt (its late reply may still
                                 come), else 0                                      */
     uint32_t stray_bytes;    /* atomic: bytes discarded outside replies (diag)     */
+    uint8_t heard[MBFB_HEARD_MAX]; /* worker: the last bytes heard during the silence
+                                wait before this attempt (mbfb_serial_quiet), for late
+                                replies (mbfb_worker.c, hear_late_replies)           */
+    int n_heard;
     uint32_t transactions;   /* atomic: attempts put on the wire                   */
     uint32_t busy_epoch[MBFB_BUSY_BUCKETS]; /* atomic: 100 ms period of the bucket */
     uint32_t busy_us[MBFB_BUSY_BUCKETS];    /* atomic: line busy in that period   */

@@ -7,6 +7,7 @@
 #endif
 #include <errno.h>
 #include <poll.h>
+#include <string.h>
 #include <unistd.h>
 
 #include "mbfb_internal.h"
@@ -27,6 +28,23 @@ int mbfb_fd_wait_input(int fd, int64_t wait_us)
     return rc < 0 ? -1 : rc > 0;
 }
 
+/* Keep the newest bytes heard in the silence wait in bus->heard (late replies). */
+static void keep_heard(mbfb_bus_t *bus, const uint8_t *b, int n)
+{
+    int drop = bus->n_heard + n - MBFB_HEARD_MAX;
+    if (n > MBFB_HEARD_MAX) {
+        b += n - MBFB_HEARD_MAX;
+        n = MBFB_HEARD_MAX;
+        drop = bus->n_heard;
+    }
+    if (drop > 0) {
+        memmove(bus->heard, bus->heard + drop, (size_t)(bus->n_heard - drop));
+        bus->n_heard -= drop;
+    }
+    memcpy(bus->heard + bus->n_heard, b, (size_t)n);
+    bus->n_heard += n;
+}
+
 /* Wait until the line has been silent for silence_us, reading and discarding whatever
  * arrives meanwhile (see mbfb_backend_t.quiet). Written here because libmodbus only
  * flushes, and modbus_flush() on a serial port is tcflush(TCIOFLUSH): it would also drop
@@ -36,6 +54,8 @@ int mbfb_serial_quiet(mbfb_bus_t *bus, int silence_us, int limit_us)
 {
     int64_t give_up = mbfb_now_us() + limit_us;
     int stray = 0;
+
+    bus->n_heard = 0;
 
     for (;;) {
         uint8_t junk[256];
@@ -53,6 +73,7 @@ int mbfb_serial_quiet(mbfb_bus_t *bus, int silence_us, int limit_us)
         if (n > 0) {
             int64_t now = mbfb_now_us();
             stray += (int)n;
+            keep_heard(bus, junk, (int)n);
             if (bus->quiet_from_us < now) /* a byte restarts the silence */
                 bus->quiet_from_us = now;
             if (now >= give_up)

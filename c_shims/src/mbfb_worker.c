@@ -13,7 +13,9 @@
  * the device is out of step and the reply shape of that attempt is outstanding. While
  * out of step only resync reads go to the device: a read whose reply shape differs from
  * every outstanding one. A good reply to it brings the device back in step (it serves
- * requests in order: nothing older can follow) and clears the outstanding set.
+ * requests in order: nothing older can follow) and clears the outstanding set. A late
+ * reply heard in the silence before a request retires its shape (hear_late_replies), and
+ * a read whose shape is free is its own resync read: its answer is the request's.
  * Confirmed writes (README "Confirmed writes"): an echo while in step is DONE; an
  * exception is a definite "not applied"; any other failure leaves the outcome unknown
  * until a read-back (FC03 of the written registers, in step) shows it: equal -> DONE;
@@ -85,8 +87,11 @@ static void busy_add(mbfb_bus_t *bus, int64_t now, int64_t us)
     busy_update(bus, now);
 }
 
+static void hear_late_replies(mbfb_bus_t *bus);
+
 /* Wait for a silent line before an attempt: the gap, or the settle owed after a
- * failed attempt. 0 or -PORTLOST. */
+ * failed attempt; a late reply heard meanwhile retires its outstanding shape.
+ * 0 or -PORTLOST. */
 static int wait_quiet(mbfb_bus_t *bus)
 {
     int silence = bus->timing.gap_us, n;
@@ -98,6 +103,8 @@ static int wait_quiet(mbfb_bus_t *bus)
         return n;
     bus->settle_us = 0;
     MBFB_STRAY_ADD(bus, n);
+    if (bus->be->needs_resync && bus->n_heard > 0)
+        hear_late_replies(bus);
     return 0;
 }
 
@@ -199,6 +206,36 @@ static void in_step(mbfb_dev_t *dev)
     dev->n_out = 0;
 }
 
+/* Late replies heard in the silence before a request (bus->heard): a whole, checked
+ * reply of a device of this bus whose shape is outstanding retires that shape, since the
+ * device gives one reply per request. Its next request then need not avoid that shape: a
+ * read can be its own resync read (pick_resync). An exception retires an outstanding
+ * shape of its function. The device stays out of step until a resync read is answered. */
+static void hear_late_replies(mbfb_bus_t *bus)
+{
+    uint8_t f[MBFB_FRAME_MAX];
+    int pos = 0, len;
+
+    while ((len = mbfb_next_reply(bus->cfg.framing, bus->heard, bus->n_heard, &pos, f)) > 0) {
+        for (int d = 0; d < MBFB_MAX_DEVICES; d++) {
+            mbfb_dev_t *dev = __atomic_load_n(&mbfb_devs[d], __ATOMIC_ACQUIRE);
+            int fc = f[1] & 0x7F, exc = (f[1] & 0x80) != 0, i;
+            if (dev == NULL || dev->bus != bus->index || dev->slave != f[0])
+                continue;
+            for (i = 0; i < dev->n_out; i++)
+                if (dev->out[i].fc == fc && (exc || (len >= 3 && dev->out[i].bytes == f[2])))
+                    break;
+            if (i < dev->n_out) { /* retire it: that request has had its answer */
+                memmove(&dev->out[i], &dev->out[i + 1],
+                        (size_t)(dev->n_out - i - 1) * sizeof dev->out[0]);
+                dev->n_out--;
+            }
+            break;
+        }
+    }
+    bus->n_heard = 0;
+}
+
 /* Remember a range that read well (most recent first). */
 static void remember_read(mbfb_dev_t *dev, int fc, int addr, int count)
 {
@@ -255,8 +292,10 @@ static int pick_resync(mbfb_bus_t *bus, int devidx, int fc, int addr, int count,
     expire_shapes(dev, mbfb_now_us());
     if (dev->n_out >= MBFB_OUTSTANDING_MAX)
         return 0;
-    if (readback && !shape_taken(dev, 3, count)) {
-        r->fc = 3, r->addr = addr, r->count = count;
+    if ((readback || !write) && !shape_taken(dev, rfc, count)) {
+        /* the written range (its reply is the read-back too), or the read itself (its
+         * answer is the request's: no second read of the same registers) */
+        r->fc = rfc, r->addr = addr, r->count = count;
         return 1;
     }
     r->count = 0;
@@ -316,10 +355,14 @@ static int run_op(mbfb_bus_t *bus, op_t *op)
         if (failures >= op->budget)
             return unknown ? MBFB_E_UNCONFIRMED : err;
         if (!dev->in_step) { /* only a resync read may go */
-            int merged, exc_proves;
+            int merged, own_read, exc_proves;
+            /* listen first: a late reply heard now frees its shape for the choice */
+            if (wait_quiet(bus) < 0)
+                return -MBFB_E_PORTLOST;
             if (!pick_resync(bus, op->devidx, op->fc, op->addr, op->count, unknown, &r))
                 return unknown ? MBFB_E_UNCONFIRMED : (op->sent ? err : MBFB_E_OFFLINE);
             merged = unknown && r.fc == 3 && r.addr == op->addr && r.count == op->count;
+            own_read = !write && r.fc == op->fc && r.addr == op->addr && r.count == op->count;
             exc_proves = !exception_taken(dev, r.fc); /* no earlier exception can come */
             next_attempt(dev, op);
             MBFB_DIAG_INC(dev, resyncs);
@@ -331,6 +374,8 @@ static int run_op(mbfb_bus_t *bus, op_t *op)
                 in_step(dev);
                 if (merged)
                     return MBFB_E_UNCONFIRMED; /* the read-back is refused */
+                if (own_read)
+                    return rc; /* the request's own answer */
                 continue;
             }
             if (rc != MBFB_OK) { /* this exception may be a late one: still out of step */
@@ -343,6 +388,11 @@ static int run_op(mbfb_bus_t *bus, op_t *op)
             op->answered = 1;
             in_step(dev);
             remember_read(dev, r.fc, r.addr, r.count);
+            if (own_read) { /* the resync read was the request: its answer is the data */
+                if (op->out != NULL)
+                    memcpy(op->out, rb, (size_t)op->count * sizeof rb[0]);
+                return MBFB_OK;
+            }
             if (!merged)
                 continue;
         } else if (unknown) { /* in step: read the written registers back */

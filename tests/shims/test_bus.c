@@ -529,7 +529,9 @@ static void dead_device(void)
     CHECK_EQ(v[0], 77);
     CHECK_EQ(mbfb_dev_diag(d2, &dg), 0);
     CHECK_EQ(dg.offline, 0);
-    CHECK_EQ(dg.good, 2); /* the resync read's reply, then the request's */
+    /* 1: its shape had expired and the request was its own resync read; 2: a resync read
+     * of another shape, then the request */
+    CHECK(dg.good >= 1 && dg.good <= 2);
     CHECK_EQ(t_run(d2, 3, 0, 1, NULL, v, 1), 1);
     teardown();
 }

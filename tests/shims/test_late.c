@@ -117,8 +117,10 @@ static void late_case(int trickling)
     CHECK_EQ(mbfb_take(h, v, NREG), NREG);
     for (int i = 0; i < NREG; i++)
         CHECK_EQ(v[i], 0x1000 + 10 + i);
-    CHECK_EQ(peer_count(&P), 3); /* request, resync read, request */
-    check_clean(dev, 2, 1, bytes); /* good: the resync read's reply and the answer */
+    /* the late reply was heard while the next request waited: its shape is free again and
+     * the next request is its own resync read (no second read of the same registers) */
+    CHECK_EQ(peer_count(&P), 2);
+    check_clean(dev, 1, 1, bytes);
     teardown();
 }
 
@@ -140,6 +142,40 @@ static void late_trickling(void)
     pace_us = 10000;
     hold = 0;
     late_case(1);
+}
+
+/* A one-register read whose reply comes 200 ms late, the device deaf meanwhile (busy with
+ * it, half-duplex): its retry, a resync read of the only other one-register shape (FC04),
+ * goes unanswered, so both shapes are outstanding. Once the late reply has been heard, the
+ * next request goes on the wire (it used to be refused OFFLINE until MBFB_LATE_MAX_MS) and
+ * gets its own answer: the heard reply retired its shape, and the request is its own
+ * resync read. */
+static void deaf_late_first(peer_t *p, int n, const uint8_t *f, int len, peer_reply_t *r)
+{
+    peer_answer(p, n, f, len, r);
+    if (n == 0) {
+        r->delay_ms = 200;
+        r->pace_us = 1;
+        r->deaf = 1;
+    }
+}
+
+static void late_heard_frees_its_shape(void)
+{
+    uint16_t v[1] = {0};
+    int dev = t_serial_dev(&P, deaf_late_first, framing, 9600, 50, 1);
+    CHECK_EQ(t_run(dev, 3, 0, 1, NULL, v, 1), -MBFB_E_TIMEOUT); /* FC03, then FC04 */
+    CHECK_EQ(t_diag(dev).retries, 1);   /* the FC04 resync went out ...           */
+    CHECK_EQ(peer_count(&P), 1);        /* ... and the deaf device did not hear it */
+    for (int64_t end = t_now_us() + 5000000; !late_started() && t_now_us() < end;)
+        t_sleep_ms(1);
+    CHECK(late_started());
+    t_sleep_ms(50);                     /* the late reply is on the line */
+    CHECK_EQ(t_run(dev, 3, 1, 1, NULL, v, 1), 1);
+    CHECK_EQ(v[0], 0x1001);             /* its own answer */
+    CHECK_EQ(peer_count(&P), 2);        /* on the wire at once: no OFFLINE, one read */
+    CHECK_EQ(t_diag(dev).offline, 0);
+    teardown();
 }
 
 /* A valid-looking answer to the same question with a wrong value, in this framing. */
@@ -270,6 +306,7 @@ int main(void)
     static const t_case_t cases[] = {
         {late_defect, "a reply later than the retry window (issue 8)"},
         {late_in_wait, "late reply during the wait"},
+        {late_heard_frees_its_shape, "a heard late reply frees its shape"},
         {late_trickling, "late reply still trickling"},
         {babble_short, "another talker"},
         {babble_forever, "babbling line"},
