@@ -518,3 +518,47 @@ def test_a_side_off_the_line_gets_framing_errors(line, side, baud, stop):
     exchange(m, s, b"\x01\x03", b"\x01\x83")
     assert ln.stats()["total"]["format_errors"] == 7
     assert ln.stop() == 0
+
+
+# termios2 (Linux x86-64/aarch64 layout): 4 x u32 flags, u8 c_line, 19 x c_cc, u32 ispeed,
+# u32 ospeed; TCGETS2/TCSETS2 = _IOR/_IOW('T', 0x2A/0x2B, struct termios2); BOTHER in c_cflag.
+TERMIOS2 = "=4IB19BII"
+TCGETS2, TCSETS2, BOTHER, CBAUD = 0x802C542A, 0x402C542B, 0o010000, 0o010017
+
+
+def get_speed2(fd):
+    import fcntl
+    import struct
+    t = struct.unpack(TERMIOS2, fcntl.ioctl(fd, TCGETS2, bytes(struct.calcsize(TERMIOS2))))
+    return t[-2], t[-1]
+
+
+def set_speed2(fd, baud):
+    """A peer sets an exact rate the way libmodbus-based masters and pyserial do for rates
+    without a B* constant: termios2 with BOTHER."""
+    import fcntl
+    import struct
+    t = list(struct.unpack(TERMIOS2, fcntl.ioctl(fd, TCGETS2, bytes(struct.calcsize(TERMIOS2)))))
+    t[2] = (t[2] & ~(CBAUD | CBAUD << 16)) | BOTHER | BOTHER << 16
+    t[-2] = t[-1] = baud
+    fcntl.ioctl(fd, TCSETS2, struct.pack(TERMIOS2, *t))
+
+
+@pytest.mark.parametrize("baud", [14400, 28800, 76800])
+def test_a_rate_without_a_constant_is_set_and_checked(line, baud):
+    """The MT-S9's 14400, 28800, 76800: both ptys start at the exact rate (termios2), a peer
+    at that rate (BOTHER) is clean, a peer at another rate garbles."""
+    ln = line("--no-pace", "--baud", str(baud), "--format", "8N1")
+    m, s = ln.open(ln.m), ln.open(ln.s)
+    assert get_speed2(m) == get_speed2(s) == (baud, baud)
+    set_speed2(m, baud)
+    exchange(m, s, b"\x01\x03", b"\x01\x83")
+    assert ln.stats()["total"]["format_errors"] == 0
+    set_speed2(m, baud + 1)
+    write_all(m, b"\x01\x03\x00\x00")
+    assert read_n(s, 4) == b"\0\0\0\0"
+    set_port(m, 9600, 1)
+    write_all(m, b"\x01\x03")
+    assert read_n(s, 2) == b"\0\0"
+    assert ln.stats()["m2s"]["format_errors"] == 6
+    assert ln.stop() == 0

@@ -5,6 +5,7 @@
  * and bytes for it are dropped rather than delivered stale. */
 #define _GNU_SOURCE
 #include "side.h"
+#include "speed.h"
 
 #include <errno.h>
 #include <fcntl.h>
@@ -27,15 +28,19 @@ static int make_raw(int fd, const pl_settings *line)
     t.c_cflag |= CLOCAL | CREAD;
     t.c_cc[VMIN] = 1;
     t.c_cc[VTIME] = 0;
-    if (line != NULL && line->check) {
+    if (line != NULL && line->check && line->speed != 0) {
         cfsetispeed(&t, (speed_t)line->speed);
         cfsetospeed(&t, (speed_t)line->speed);
+    }
+    if (line != NULL && line->check) {
         if (line->stop2)
             t.c_cflag |= CSTOPB;
         else
             t.c_cflag &= ~(tcflag_t)CSTOPB;
     }
-    return tcsetattr(fd, TCSANOW, &t);
+    if (tcsetattr(fd, TCSANOW, &t) != 0)
+        return -1;
+    return line != NULL && line->check && line->speed == 0 ? pl_speed_set(fd, line->baud) : 0;
 }
 
 void pl_settings_of(long baud, const char *format, pl_settings *out)
@@ -49,6 +54,8 @@ void pl_settings_of(long baud, const char *format, pl_settings *out)
         {1500000, B1500000}, {2000000, B2000000}, {2500000, B2500000},
         {3000000, B3000000}, {3500000, B3500000}, {4000000, B4000000}};
     *out = (pl_settings){0};
+    out->baud = baud;
+    out->check = baud > 0; /* a rate without a B* constant: termios2 */
     for (size_t i = 0; i < sizeof speeds / sizeof speeds[0]; i++)
         if (speeds[i].baud == baud) {
             out->check = 1;
@@ -61,8 +68,12 @@ void pl_settings_of(long baud, const char *format, pl_settings *out)
 int pl_side_settings_ok(const pl_side *s, const pl_settings *line)
 {
     struct termios t;
+    long ispeed, ospeed;
     if (!line->check || tcgetattr(s->fd, &t) != 0)
         return 1;
+    if (line->speed == 0 || pl_speed_is_other((unsigned)cfgetospeed(&t))) /* termios2 */
+        return pl_speed_get(s->fd, &ispeed, &ospeed) != 0 ||
+               (ispeed == line->baud && ospeed == line->baud);
     /* the speed only: a UART checks the first stop bit alone (8N1 talks to 8N2), and a pty
      * carries no parity to compare */
     return cfgetospeed(&t) == (speed_t)line->speed && cfgetispeed(&t) == (speed_t)line->speed;

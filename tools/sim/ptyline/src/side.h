@@ -22,8 +22,10 @@ typedef struct {
 /* The character format of the line as a pty can show it: Linux ptys keep the
  * speed and CSTOPB a peer sets but always report CS8 without parity. */
 typedef struct {
-    int check;            /* 0: the baud has no termios constant, nothing is checked */
-    unsigned speed;       /* speed_t of the baud */
+    int check;            /* 0: no baud given, nothing is checked */
+    unsigned speed;       /* speed_t of the baud; 0: no B* constant, set and read with
+                             termios2 (BOTHER, speed.c) */
+    long baud;            /* the line's baud */
     int stop2;            /* two stop bits */
 } pl_settings;
 
