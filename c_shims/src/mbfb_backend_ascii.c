@@ -15,18 +15,6 @@
 
 static const char hexd[] = "0123456789ABCDEF";
 
-/* Value of a hex digit, or -1. */
-static int hexval(int c)
-{
-    if (c >= '0' && c <= '9')
-        return c - '0';
-    if (c >= 'A' && c <= 'F')
-        return c - 'A' + 10;
-    if (c >= 'a' && c <= 'f')
-        return c - 'a' + 10;
-    return -1;
-}
-
 /* Send ':' + hex(frame + LRC) + CR LF. */
 static int ascii_send(mbfb_bus_t *bus, const uint8_t *frame, int len)
 {
@@ -84,7 +72,7 @@ static int ascii_recv(mbfb_bus_t *bus, const uint8_t *req, uint8_t *frame, int m
                 nhex = 0;
             } else if (state == A_HEX && c == '\r') {
                 state = A_CR;
-            } else if (state == A_HEX && (v = hexval(c)) >= 0) {
+            } else if (state == A_HEX && (v = mbfb_hex_digit(c)) >= 0) {
                 if (nhex / 2 >= (int)sizeof bin)
                     return -MBFB_E_BADREPLY;
                 if (nhex & 1)

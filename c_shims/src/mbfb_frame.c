@@ -115,7 +115,7 @@ int mbfb_check_args(int slave, int fc, int addr, int count, const uint16_t *valu
 }
 
 /* Value of an upper- or lower-case hex digit, or -1. */
-static int hex_digit(int c)
+int mbfb_hex_digit(int c)
 {
     if (c >= '0' && c <= '9')
         return c - '0';
@@ -155,9 +155,9 @@ int mbfb_next_reply(int framing, const uint8_t *buf, int n, int *pos, uint8_t *f
                 (*pos)++;
                 continue;
             }
-            while (k + 1 < left && hex_digit(b[k]) >= 0 && hex_digit(b[k + 1]) >= 0 &&
+            while (k + 1 < left && mbfb_hex_digit(b[k]) >= 0 && mbfb_hex_digit(b[k + 1]) >= 0 &&
                    m < MBFB_FRAME_MAX) {
-                frame[m++] = (uint8_t)(hex_digit(b[k]) << 4 | hex_digit(b[k + 1]));
+                frame[m++] = (uint8_t)(mbfb_hex_digit(b[k]) << 4 | mbfb_hex_digit(b[k + 1]));
                 k += 2;
             }
             if (k + 1 < left && b[k] == '\r' && b[k + 1] == '\n' && m >= 3 &&

@@ -87,6 +87,9 @@ int mbfb_check_reply(const uint8_t *req, const uint8_t *rsp, int len);
  *  length; 0 when there is none (*pos = n). */
 int mbfb_next_reply(int framing, const uint8_t *buf, int n, int *pos, uint8_t *frame);
 
+/** Value of an upper- or lower-case hex digit (ASCII framing), or -1. */
+int mbfb_hex_digit(int c);
+
 /** Validate post arguments; 0 or MBFB_E_INVAL. */
 int mbfb_check_args(int slave, int fc, int addr, int count, const uint16_t *values);
 
