@@ -48,7 +48,8 @@ static int ascii_recv(mbfb_bus_t *bus, const uint8_t *req, uint8_t *frame, int m
 
     (void)req;
     for (;;) {
-        uint8_t chunk[64];
+        uint8_t chunk[1]; /* one byte a read: what follows the frame stays in the port for
+                             the next receive (a late reply, then this request's answer) */
         int64_t now = mbfb_now_us(), limit = state == A_IDLE ? start_by : end_by;
         int64_t wait = got_any ? bus->timing.byte_us : limit - now;
         ssize_t n;
@@ -87,8 +88,7 @@ static int ascii_recv(mbfb_bus_t *bus, const uint8_t *req, uint8_t *frame, int m
                     return -MBFB_E_CRC;
                 for (int k = 0; k < len; k++)
                     frame[k] = bin[k];
-                /* noise before it and what came after it in this read: discarded */
-                MBFB_STRAY_ADD(bus, skipped + (int)(n - i - 1));
+                MBFB_STRAY_ADD(bus, skipped); /* noise before it: discarded */
                 return len;
             } else if (state != A_IDLE) {
                 return -MBFB_E_BADREPLY; /* garbage inside a frame */

@@ -89,6 +89,32 @@ static void busy_add(mbfb_bus_t *bus, int64_t now, int64_t us)
 
 static void hear_late_replies(mbfb_bus_t *bus);
 
+/* A whole, checked reply frame f (slave + PDU) heard outside its request: when a device of
+ * this bus has its shape outstanding, retire that shape (the device gives one reply per
+ * request, so that one can no longer come) and return 1; else 0. An exception retires an
+ * outstanding shape of its function. */
+static int retire_heard(mbfb_bus_t *bus, const uint8_t *f, int len)
+{
+    int fc = f[1] & 0x7F, exc = (f[1] & 0x80) != 0;
+
+    for (int d = 0; d < MBFB_MAX_DEVICES; d++) {
+        mbfb_dev_t *dev = __atomic_load_n(&mbfb_devs[d], __ATOMIC_ACQUIRE);
+        int i;
+        if (dev == NULL || dev->bus != bus->index || dev->slave != f[0])
+            continue;
+        for (i = 0; i < dev->n_out; i++)
+            if (dev->out[i].fc == fc && (exc || (len >= 3 && dev->out[i].bytes == f[2])))
+                break;
+        if (i == dev->n_out)
+            return 0;
+        memmove(&dev->out[i], &dev->out[i + 1],
+                (size_t)(dev->n_out - i - 1) * sizeof dev->out[0]);
+        dev->n_out--;
+        return 1;
+    }
+    return 0;
+}
+
 /* Wait for a silent line before an attempt: the gap, or the settle owed after a
  * failed attempt; a late reply heard meanwhile retires its outstanding shape.
  * 0 or -PORTLOST. */
@@ -118,7 +144,7 @@ static int attempt(mbfb_bus_t *bus, mbfb_dev_t *dev, int fc, int addr, int count
 {
     uint8_t req[MBFB_FRAME_MAX], rsp[MBFB_FRAME_MAX];
     int len = mbfb_build_request(req, dev->slave, fc, addr, count, vals), rc, err;
-    int64_t t0;
+    int64_t t0, deadline;
 
     bus->timeout_us = bus->cfg.response_timeout_ms > 0
                           ? bus->cfg.response_timeout_ms * 1000
@@ -136,7 +162,18 @@ static int attempt(mbfb_bus_t *bus, mbfb_dev_t *dev, int fc, int addr, int count
         busy_add(bus, t0, bus->quiet_from_us - t0 + bus->timing.gap_us);
         return MBFB_OK;
     }
+    deadline = mbfb_now_us() + bus->timeout_us;
     rc = bus->be->recv(bus, req, rsp, (int)sizeof rsp, bus->timeout_us);
+    /* a late reply of an outstanding shape came first (a resync read's shape differs from
+     * every outstanding one): its shape is retired and the wait goes on for this request's
+     * own answer, which the device sends after it */
+    while (rc > 0 && bus->be->needs_resync &&
+           mbfb_check_reply(req, rsp, rc) == MBFB_E_BADREPLY && retire_heard(bus, rsp, rc)) {
+        int64_t left = deadline - mbfb_now_us();
+        MBFB_STRAY_ADD(bus, mbfb_wire_len(bus->cfg.framing, rc));
+        rc = left > 0 ? bus->be->recv(bus, req, rsp, (int)sizeof rsp, (int)left)
+                      : -MBFB_E_TIMEOUT;
+    }
     bus->quiet_from_us = mbfb_now_us();
     busy_add(bus, bus->quiet_from_us, bus->quiet_from_us - t0 + bus->timing.gap_us);
     if (rc == -MBFB_E_PORTLOST)
@@ -216,23 +253,8 @@ static void hear_late_replies(mbfb_bus_t *bus)
     uint8_t f[MBFB_FRAME_MAX];
     int pos = 0, len;
 
-    while ((len = mbfb_next_reply(bus->cfg.framing, bus->heard, bus->n_heard, &pos, f)) > 0) {
-        for (int d = 0; d < MBFB_MAX_DEVICES; d++) {
-            mbfb_dev_t *dev = __atomic_load_n(&mbfb_devs[d], __ATOMIC_ACQUIRE);
-            int fc = f[1] & 0x7F, exc = (f[1] & 0x80) != 0, i;
-            if (dev == NULL || dev->bus != bus->index || dev->slave != f[0])
-                continue;
-            for (i = 0; i < dev->n_out; i++)
-                if (dev->out[i].fc == fc && (exc || (len >= 3 && dev->out[i].bytes == f[2])))
-                    break;
-            if (i < dev->n_out) { /* retire it: that request has had its answer */
-                memmove(&dev->out[i], &dev->out[i + 1],
-                        (size_t)(dev->n_out - i - 1) * sizeof dev->out[0]);
-                dev->n_out--;
-            }
-            break;
-        }
-    }
+    while ((len = mbfb_next_reply(bus->cfg.framing, bus->heard, bus->n_heard, &pos, f)) > 0)
+        retire_heard(bus, f, len);
     bus->n_heard = 0;
 }
 

@@ -178,6 +178,32 @@ static void late_heard_frees_its_shape(void)
     teardown();
 }
 
+/* A one-register read answered 250 ms late by a device that answers in order (its next
+ * request waits until the late reply is out): the request times out at 100 ms, the retry's
+ * resync read (FC04, the other one-register shape) goes out after the settle and the late
+ * FC03 reply arrives while it waits for its answer. That reply's shape is outstanding: it is
+ * retired and the wait goes on, the resync read's own answer follows, and the request gets
+ * its own value in its retry (it used to end BADREPLY: the late reply failed the resync
+ * read's check). If the machine is slow enough for the late reply to land in the settle
+ * instead, it is heard there (2 requests, not 3); the value is right either way. */
+static void in_order_late_first(peer_t *p, int n, const uint8_t *f, int len, peer_reply_t *r)
+{
+    peer_answer(p, n, f, len, r);
+    if (n == 0)
+        r->delay_ms = 250;
+}
+
+static void late_heard_in_resync_wait(void)
+{
+    uint16_t v[1] = {0};
+    int dev = t_serial_dev(&P, in_order_late_first, framing, 9600, 100, 1);
+    CHECK_EQ(t_run(dev, 3, 0, 1, NULL, v, 1), 1);
+    CHECK_EQ(v[0], 0x1000);
+    CHECK(peer_count(&P) == 2 || peer_count(&P) == 3);
+    CHECK_EQ(t_diag(dev).crc_errors + t_diag(dev).bad_replies, 0);
+    teardown();
+}
+
 /* A valid-looking answer to the same question with a wrong value, in this framing. */
 static int wrong_answer(uint8_t *out)
 {
@@ -307,6 +333,7 @@ int main(void)
         {late_defect, "a reply later than the retry window (issue 8)"},
         {late_in_wait, "late reply during the wait"},
         {late_heard_frees_its_shape, "a heard late reply frees its shape"},
+        {late_heard_in_resync_wait, "a late reply heard in a resync read's wait"},
         {late_trickling, "late reply still trickling"},
         {babble_short, "another talker"},
         {babble_forever, "babbling line"},
