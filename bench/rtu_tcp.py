@@ -38,12 +38,13 @@ from wire_pace import cache_value, run, stop  # noqa: E402
 BAUD, FMT, DEVICE, FC, ADDR, COUNT = 9600, "8N2", "mvd94:1", 3, 0, 17
 
 
-def master(exe: str, port: str, seconds: float) -> tuple[float, int]:
+def master(exe: str, port: str, seconds: float, env: dict | None = None) -> tuple[float, int]:
     """wp_shims post on port for `seconds`; (good transactions per second, failed)."""
     out = tempfile.TemporaryFile(mode="w+")
     t0 = time.monotonic()
     proc = subprocess.Popen([exe, "post", port, str(BAUD), FMT, "1", str(FC), str(ADDR),
-                             str(COUNT)], stdout=out, stderr=subprocess.STDOUT, text=True)
+                             str(COUNT)], stdout=out, stderr=subprocess.STDOUT, text=True,
+                            env=env)
     try:
         time.sleep(seconds)
     finally:
