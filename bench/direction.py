@@ -18,7 +18,6 @@ pty; every process is stopped by pid; the temp dir is removed.
 """
 from __future__ import annotations
 
-import argparse
 import os
 import shutil
 import statistics
@@ -28,9 +27,9 @@ import tempfile
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, os.path.join(ROOT, "tools", "sim"))
 sys.path.insert(0, os.path.join(ROOT, "bench"))
-from rtu_tcp import ADDR, BAUD, COUNT, DEVICE, FC, FMT, master  # noqa: E402,F401
+from rtu_tcp import (BAUD, COUNT, DEVICE, FMT, bench_args, build_master, master,  # noqa: E402
+                     shortest_transaction)
 from simctl import Simulator  # noqa: E402
-from wire_pace import cache_value, run  # noqa: E402
 
 DIR_RTS = 2                                     # MBFB_DIR_RTS
 CASES = [("none", None, 0, 0), ("rts", DIR_RTS, 0, 0), ("rts +1 ms before", DIR_RTS, 1000, 0),
@@ -38,25 +37,14 @@ CASES = [("none", None, 0, 0), ("rts", DIR_RTS, 0, 0), ("rts +1 ms before", DIR_
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--build", default=os.path.join(ROOT, "build"), help="cmake build dir")
-    ap.add_argument("--runs", type=int, default=3)
-    ap.add_argument("--seconds", type=float, default=5.0, help="each master run")
-    args = ap.parse_args()
-    lib = os.path.join(args.build, "c_shims", "libmbfb.a")
+    args = bench_args(__doc__)
     ptyline = os.path.join(args.build, "tools", "sim", "ptyline", "mbfb-ptyline")
     double = os.path.join(args.build, "tests", "shims", "libmbfb_linedouble.so")
-    lm = cache_value(args.build, "MBFB_LM_OPENPLC_LIB") or cache_value(args.build, "MBFB_LM_DEBIAN_LIB")
-    if not (os.path.exists(lib) and os.path.exists(ptyline) and os.path.exists(double) and lm):
-        raise SystemExit(f"build the targets mbfb, mbfb-ptyline and mbfb_linedouble in {args.build}")
     tmp = tempfile.mkdtemp(prefix="direction-bench-")
     res = {name: [] for name, *_ in CASES}
     fails = {name: 0 for name, *_ in CASES}
     try:
-        exe = os.path.join(tmp, "wp_shims")
-        run(["gcc", "-O2", "-I", os.path.join(ROOT, "c_shims", "include"), "-o", exe,
-             os.path.join(ROOT, "bench", "wirepace", "wp_shims.c"), lib, lm, "-lpthread", "-ldl",
-             f"-Wl,-rpath,{os.path.dirname(lm)}"])
+        exe = build_master(args.build, tmp, [ptyline, double])
         for r in range(args.runs):
             for name, mode, before, after in CASES:
                 with Simulator([DEVICE], baud=BAUD, fmt=FMT, pace=True, seed=r + 1,
@@ -72,9 +60,7 @@ def main() -> int:
                       file=sys.stderr, flush=True)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
-    bits = 1 + int(FMT[0]) + (FMT[1] != "N") + int(FMT[2])
-    char = bits / BAUD
-    shortest = (3.5 + 6 + 2 + 3 + 2 * COUNT + 2) * char + 0.0055   # t3.5, frames, turnaround
+    shortest = shortest_transaction()
     base = statistics.median(res["none"])
     print(f"MV-D94 {BAUD} {FMT}, FC03 of {COUNT} registers; shortest transaction "
           f"{shortest * 1000:.1f} ms; {args.runs} runs of {args.seconds:g} s, medians")
