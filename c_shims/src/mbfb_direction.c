@@ -106,8 +106,10 @@ static int kernel_open(mbfb_bus_t *bus, dir_state_t *st)
         return -MBFB_E_DIRECTION;
     /* a driver may clamp what it cannot do: the mode and polarity must be as asked */
     if ((back.flags & (SER_RS485_ENABLED | SER_RS485_RTS_ON_SEND | SER_RS485_RTS_AFTER_SEND)) !=
-        rs.flags)
+        rs.flags) {
+        ioctl(bus->fd, TIOCSRS485, &st->saved);
         return -MBFB_E_DIRECTION;
+    }
     return 0;
 }
 
