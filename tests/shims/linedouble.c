@@ -19,7 +19,8 @@
  * It also stands in for libgpiod v1 (its soname is libgpiod.so.2, so the shims' dlopen of
  * libgpiod.so.2 finds this already-loaded library): chip $LINEDOUBLE_GPIOCHIP exists and
  * has lines 0..31; any other chip does not.
- * $LINEDOUBLE_REFUSE=rts|rs485 makes that ioctl fail (a driver without it).
+ * $LINEDOUBLE_REFUSE=rts|rs485 makes that ioctl fail (a driver without it); =polarity keeps
+ * the RS-485 mode but drops the RTS polarity flags (a driver that clamps what it cannot do).
  */
 #define _GNU_SOURCE
 #include <dlfcn.h>
@@ -173,6 +174,8 @@ int ioctl(int fd, unsigned long req, ...)
                 return -1;
             }
             memcpy(&rs485, arg, sizeof rs485);
+            if (refused("polarity")) /* a driver that clamps the RTS polarity it cannot do */
+                rs485.flags &= ~(unsigned)(SER_RS485_RTS_ON_SEND | SER_RS485_RTS_AFTER_SEND);
             record(t, "rs485 %x %u %u", rs485.flags, rs485.delay_rts_before_send,
                    rs485.delay_rts_after_send);
             return 0;

@@ -94,6 +94,7 @@ def test_edges_frame_every_request(tmp_path, framing, mode, active_low, before, 
 @pytest.mark.parametrize("mode,chip,refuse", [
     ("rts", CHIP, "rts"),            # a port without modem lines
     ("kernel", CHIP, "rs485"),       # a driver without RS-485 mode
+    ("kernel", CHIP, "polarity"),    # one that drops the polarity asked for
     ("gpio", "gpiochip-none", None)])  # no such GPIO chip
 def test_refused_mode_sends_nothing(tmp_path, framing, mode, chip, refuse):
     line = LINES[framing]
