@@ -31,29 +31,23 @@ def writes(sim):
 
 
 def test_scan_finds_exactly_the_instruments(tmp_path):
-    """Non-factory addresses and bauds on one line, and one answer that fits no map."""
+    """Non-factory addresses and bauds on one line, an MT-S9 on ASCII among the RTU
+    instruments, and one answer that fits no map."""
     devices = ["mvd94:7:SV=120.0,DP=1,BAUD=19.2K", "fdc100:12:SP1=150.0",
-               "mts9:21:Baud Rate Set=4", "fdc100:5"]
+               "mts9:21:Baud Rate Set=4,framing=rtu", "fdc100:5", "mts9:3:framing=ascii"]
     with Simulator(devices, baud=9600, fmt="8N2") as sim:
         sim.control({"op": "set", "addr": 5, "reg": "PROG", "raw": 9901})  # no such model
         r = tool("scan", sim.port, "--address", "1-25", "--baud", 9600, "--baud", 19200,
-                 "--format", "8N2", "--framing", "rtu", "--no-progress")
+                 "--format", "8N2", "--framing", "rtu", "--framing", "ascii", "--no-progress")
     assert r.returncode == 0, r.stderr
     rows = [line.split() for line in r.stdout.splitlines() if line[:7].strip().isdigit()]
-    got = sorted((int(x[0]), x[1], x[3]) for x in rows)
-    assert got == [(5, "unknown", "9600"), (7, "MV-D94/VD", "19200"), (12, "FDC-100", "9600"),
-                   (21, "MT-S9", "19200")], r.stdout
+    got = sorted((int(x[0]), x[1], x[2], x[3]) for x in rows)
+    assert got == [(3, "MT-S9", "ASCII", "9600"), (5, "unknown", "RTU", "9600"),
+                   (7, "MV-D94/VD", "RTU", "19200"), (12, "FDC-100", "RTU", "9600"),
+                   (21, "MT-S9", "RTU", "19200")], r.stdout
     assert "unknown Modbus device at 5, 9600 8N2 RTU" in r.stdout + r.stderr
     assert "PROG(71)=610 -> BTC-9100" in r.stdout          # the registers that made it
     assert "mvd94_7 : TempCtrl_MVD94;" in r.stdout and "Baud := 19200" in r.stdout
-
-
-def test_scan_finds_an_ascii_mts9():
-    """An MT-S9 speaking ASCII (the simulator carries one framing per line: its own line)."""
-    with Simulator(["mts9:3:framing=ascii"], baud=9600, fmt="8N1") as sim:
-        r = tool("scan", sim.port, "--address", "1-5", "--no-progress")
-    assert r.returncode == 0, r.stderr
-    assert any(x.split()[:3] == ["3", "MT-S9", "ASCII"] for x in r.stdout.splitlines()), r.stdout
     assert "Framing := 'ASCII'" in r.stdout
 
 
