@@ -51,6 +51,23 @@ def test_scan_finds_exactly_the_instruments(tmp_path):
     assert "Framing := 'ASCII'" in r.stdout
 
 
+def test_scan_tries_the_factory_addresses_first():
+    """The factory settings at the factory address (1 for all three models) before the other
+    addresses: a factory-new unit is found within seconds, the rest of the sweep after it."""
+    with Simulator(["mvd94:1:SV=80", "mvd94:4"], baud=9600, fmt="8N2") as sim:
+        r = tool("scan", sim.port, "--address", "1-6", "--no-progress")
+    assert r.returncode == 0, r.stderr
+    out = r.stdout
+    assert "pass 1: factory settings at the factory address: 3 probe(s)" in out, out
+    assert "pass 2: factory settings at the other addresses: 15 probe(s)" in out, out
+    done = [line for line in out.splitlines() if line.startswith("pass 1 done")]
+    assert done and "1 instrument(s) found so far" in done[0], out
+    assert float(done[0].split(" after ")[1].split()[0]) < 5.0, done[0]
+    assert out.index("pass 1 done") < out.index("pass 2 done")
+    rows = [line.split() for line in out.splitlines() if line[:7].strip().isdigit()]
+    assert [(int(x[0]), x[1]) for x in rows] == [(1, "MV-D94/VD"), (4, "MV-D94/VD")], out
+
+
 @pytest.mark.parametrize("source,target,first", [
     ("mvd94:1:SV=120.0,DP=1,TYPE=J,HILT=300.0,A1SP=5.0", "mvd94:2", "TYPE"),
     ("mts9:1:Decimal Set=2", "mts9:2", "Decimal Set")])

@@ -14,6 +14,8 @@ from shims import E_EXCEPTION_BASE, E_NOPORT, E_PORTLOST
 FACTORY = [(9600, "8N2", "rtu"),     # MV-D94 / VD: 9600 8N2 (manual 2.1, 4.1)
            (9600, "8E1", "rtu"),     # FDC-100: 9600 8E1 (manual Example 1)
            (9600, "8N1", "ascii")]   # MT-S9 in ASCII
+# The models a factory setting is for: their factory address is probed first on it.
+FACTORY_MODELS = {FACTORY[0]: ("mvd94", "mts9"), FACTORY[1]: ("fdc100",), FACTORY[2]: ("mts9",)}
 FORMATS = ["8N1", "8N2", "8E1", "8O1", "8E2", "8O2", "7N2", "7E1", "7O1", "7E2", "7O2"]
 MAX_RUN = 32          # words per backup read (the FDC's own limit is uncertain: 79 or 80)
 EXIT_PORT, EXIT_DEVICE = 3, 4
@@ -52,6 +54,31 @@ def settings_to_try(args) -> list:
             (not args.framing or s[2] in args.framing)]
 
 
+def factory_addresses(setting) -> list:
+    """The factory addresses of the models a factory setting is for: the default of each map's
+    address register (MV-D94 ADDR 27, FDC ADDR 39, MT-S9 ID Address Set 6: 1 for all three)."""
+    return sorted({ins.maps()[k].reg("ADDR").default for k in FACTORY_MODELS.get(setting, ())})
+
+
+def passes(todo: list, addrs: list) -> list:
+    """The scan in passes: [(title, [(setting, addresses)])]. First the factory settings at the
+    factory addresses (seconds), then the factory settings at the other addresses, then every
+    other setting (with --full or when narrowed) at all of them."""
+    factory = [s for s in todo if s in FACTORY]
+    first = [(s, [a for a in addrs if a in factory_addresses(s)]) for s in factory]
+    first = [(s, a) for s, a in first if a]
+    done = {(s, a) for s, al in first for a in al}
+    rest = [(s, [a for a in addrs if (s, a) not in done]) for s in factory]
+    out = [("factory settings at the factory address", first),
+           ("factory settings at the other addresses", [(s, a) for s, a in rest if a]),
+           ("the other line settings", [(s, addrs) for s in todo if s not in FACTORY])]
+    return [(title, plan) for title, plan in out if plan]
+
+
+def plan_seconds(plan) -> float:
+    return sum(probe_seconds(*s) * len(a) for s, a in plan)
+
+
 def addresses(text: str) -> list:
     out = []
     try:
@@ -88,34 +115,43 @@ def reader(lib, dev):
 
 
 def scan(lib, args) -> list:
-    """[((baud, format, framing), Found)] of every instrument that answered."""
+    """[((baud, format, framing), Found)] of every instrument that answered, in passes: the
+    factory settings at the factory addresses first, then the rest (see passes)."""
     from tqdm import tqdm
     check_port(args.port)
     todo, addrs = settings_to_try(args), addresses(args.address)
-    total = sum(probe_seconds(*s) for s in todo) * len(addrs)
+    plan = passes(todo, addrs)
+    total = sum(plan_seconds(p) for _, p in plan)
     print(f"{len(todo)} line setting(s) x {len(addrs)} address(es): at least {total:.0f} s "
           f"(each silent address costs a request and the shims' shortest reply timeout)")
+    for i, (title, p) in enumerate(plan, 1):
+        probes = sum(len(a) for _, a in p)
+        print(f"  pass {i}: {title}: {probes} probe(s), at least {plan_seconds(p):.1f} s")
     found, seen = [], set()
     bar = tqdm(total=round(total, 1), unit="s", disable=args.no_progress, leave=False,
                bar_format="{l_bar}{bar}| {n:.0f}/{total:.0f} s [{elapsed}<{remaining}]")
-    for baud, fmt, framing in todo:
-        bus = open_line(lib, args.port, baud, fmt, framing, retries=0)
-        bar.set_description(f"{baud} {fmt} {framing}")
-        for a in addrs:
-            read = reader(lib, lib.open_device(bus, a))
-            rc, _ = read(3, 0, 1)
-            bar.update(probe_seconds(baud, fmt, framing))
-            if rc != 0 and rc < E_EXCEPTION_BASE:
-                continue
-            f = ins.identify(read, a, baud, fmt, framing)
-            if f is None:
-                f = ins.Found("unknown", a, [f"answered FC03 at 0 ({'exception %d' % (rc - 128) if rc else 'data'});"
-                                             " fits none of MV-D94/VD, MT-S9, FDC-100"], framing=framing)
-                tqdm.write(f"unknown Modbus device at {a}, {baud} {fmt} {framing.upper()}")
-            key = (a, f.kind, baud, f.framing)
-            if key not in seen:
-                seen.add(key)
-                found.append(((baud, fmt, framing), f))
+    t0 = time.monotonic()
+    for i, (title, p) in enumerate(plan, 1):
+        for (baud, fmt, framing), pass_addrs in p:
+            bus = open_line(lib, args.port, baud, fmt, framing, retries=0)
+            bar.set_description(f"pass {i} {baud} {fmt} {framing}")
+            for a in pass_addrs:
+                read = reader(lib, lib.open_device(bus, a))
+                rc, _ = read(3, 0, 1)
+                bar.update(probe_seconds(baud, fmt, framing))
+                if rc != 0 and rc < E_EXCEPTION_BASE:
+                    continue
+                f = ins.identify(read, a, baud, fmt, framing)
+                if f is None:
+                    f = ins.Found("unknown", a, [f"answered FC03 at 0 ({'exception %d' % (rc - 128) if rc else 'data'});"
+                                                 " fits none of MV-D94/VD, MT-S9, FDC-100"], framing=framing)
+                    tqdm.write(f"unknown Modbus device at {a}, {baud} {fmt} {framing.upper()}")
+                key = (a, f.kind, baud, f.framing)
+                if key not in seen:
+                    seen.add(key)
+                    found.append(((baud, fmt, framing), f))
+        tqdm.write(f"pass {i} done ({title}) after {time.monotonic() - t0:.1f} s: "
+                   f"{len(found)} instrument(s) found so far")
     bar.close()
     lib.shutdown()
     return found
@@ -229,3 +265,4 @@ def restore(lib, args, have: dict, want: dict):
             if err:
                 return done, (name, err)
     return done, None
+
