@@ -126,6 +126,38 @@ def test_another_models_backup_is_refused_before_any_write(tmp_path):
         assert writes(sim) == []
 
 
+def test_fdc_download_one_block_read_back(tmp_path):
+    """restore --download (FDC manual Example 1): a dry run first, then one FC16 of the 0x34
+    words at 0, the lock opened before and set as in the backup after; the unit stays at its
+    address; diff empty. Another model's backup is refused before the port is opened."""
+    a, mv = tmp_path / "fdc.json", tmp_path / "mv.json"
+    with Simulator(["fdc100:1:SP1H=400.0,SP1=300.0,PB=20.0,ALHY=2.0",
+                    "fdc100:2:SP1H=160.0,LOCK=1", "mvd94:3"], baud=9600, fmt="8N2") as sim:
+        assert tool("backup", sim.port, 1, "--format", "8N2", "-o", a).returncode == 0
+        assert tool("backup", sim.port, 3, "-o", mv).returncode == 0
+        sim.control({"op": "log", "clear": True})
+        dry = tool("restore", a, sim.port, 2, "--format", "8N2", "--download")
+        assert dry.returncode == 1 and "dry run" in dry.stdout and "FC16 of 52 words" in dry.stdout
+        assert writes(sim) == []
+        r = tool("restore", a, sim.port, 2, "--format", "8N2", "--download", "--yes")
+        assert r.returncode == 0, r.stdout + r.stderr
+        sent = [f["hex"].split() for f in writes(sim)]
+        blocks = [f for f in sent if f[1] == "10"]
+        assert len(blocks) == 1 and blocks[0][:7] == ["02", "10", "00", "00", "00", "34", "68"]
+        assert [f[2:4] for f in sent if f[1] == "06"] == [["00", "03"]]   # LOCK opened only
+        assert sim.control({"op": "get", "addr": 2, "reg": "ADDR"})["raw"] == 2
+        assert sim.control({"op": "get", "addr": 2, "reg": "SP1"})["eng"] == 300.0
+        after = tool("diff", a, "--port", sim.port, "--address", 2, "--format", "8N2")
+        assert after.returncode == 0 and "0 setting(s) differ" in after.stdout, after.stdout
+        sim.control({"op": "log", "clear": True})
+        refused = tool("restore", mv, sim.port, 3, "--download", "--yes")
+        assert refused.returncode == 2 and "nothing written" in refused.stderr, refused.stderr
+        assert len(refused.stderr.strip().splitlines()) == 1
+        other = tool("restore", a, sim.port, 3, "--download", "--yes")
+        assert other.returncode == 4 and "nothing written" in other.stderr, other.stderr
+        assert writes(sim) == []
+
+
 def test_bad_input_gets_one_line_and_its_status(tmp_path):
     bad = tmp_path / "bad.json"
     bad.write_text("{not json")

@@ -266,3 +266,71 @@ def restore(lib, args, have: dict, want: dict):
                 return done, (name, err)
     return done, None
 
+
+# The FDC's programming-port download (manual Example 1): one FC16 of the parameter block,
+# 0x34 words from address 0 (SP1 .. SEL8), at 9600 8E1.
+DOWNLOAD = {"fdc100": (0, 0x34)}
+
+
+def download_block(kind: str, have: dict, want: dict) -> list:
+    """The words of the block: the backup's, but the target's own line registers (ADDR, BAUD,
+    DATA, PARI, STOP, COMM: the unit stays on its line at its address) and its lock as it is
+    now (opened before, set after). KeyError names a register the backup lacks."""
+    start, count = DOWNLOAD[kind]
+    by_addr = {e["addr"]: (n, e) for n, e in want["registers"].items()}
+    keep = ins.LINE_REGS[kind] | {ins.LOCK[kind][0]}
+    words = []
+    for a in range(start, start + count):
+        if a not in by_addr:
+            raise KeyError(f"register {a}")
+        name, entry = by_addr[a]
+        words.append(have["registers"][name]["raw"] if name in keep else entry["raw"])
+    return words
+
+
+def download(lib, args, have: dict, want: dict):
+    """The block in one FC16, the lock opened before it and set to the backup's after; each
+    step read back. (steps done, None) or (steps done, (step, error))."""
+    read, f, _, dev = _find(lib, args)
+    kind, m = f.kind, ins.maps()[f.kind]
+    start, count = DOWNLOAD[kind]
+    words = download_block(kind, have, want)
+    lock, unlocked = ins.LOCK[kind]
+    done = []
+
+    def put(name, raw):
+        r = m.reg(name)
+        rc = lib.write(dev, r.addr, raw)
+        if rc == 0:
+            rc, w = read(3, r.addr, 1)
+            if rc == 0 and w[0] != raw & 0xFFFF:
+                return f"read back {w[0]}, not {raw & 0xFFFF}"
+        return None if rc == 0 else lib.strerror(rc)
+
+    if have["registers"][lock]["raw"] != unlocked:
+        words[m.reg(lock).addr - start] = unlocked
+        err = put(lock, unlocked)
+        if err:
+            return done, (f"{lock} (unlock)", err)
+        done.append(f"{lock} opened")
+    rc = lib.write_block(dev, start, words)
+    if rc != 0:
+        return done, (f"FC16 of {count} words at {start}", lib.strerror(rc))
+    back = []
+    for a in range(start, start + count, MAX_RUN):
+        n = min(MAX_RUN, start + count - a)
+        rc, w = read(3, a, n)
+        if rc != 0:
+            return done, ("read-back of the block", lib.strerror(rc))
+        back += w
+    wrong = [m.reg(start + i).name for i, (x, y) in enumerate(zip(words, back)) if x != y]
+    if wrong:
+        return done, ("read-back of the block", f"differs at {', '.join(wrong)}")
+    done.append(f"block of {count} words at {start} (read back)")
+    want_lock = want["registers"][lock]["raw"]
+    if want_lock != unlocked:
+        err = put(lock, want_lock)
+        if err:
+            return done, (lock, err)
+        done.append(f"{lock} = {want_lock}")
+    return done, None
