@@ -158,6 +158,27 @@ def test_fdc_download_one_block_read_back(tmp_path):
         assert writes(sim) == []
 
 
+def test_fdc_download_refused_block_is_reported_and_a_rerun_finishes(tmp_path):
+    """The unit refuses the FC16 (exception 4, once): one line naming the step and what was
+    done (the lock opened), exit 5; the second run downloads the block."""
+    a = tmp_path / "fdc.json"
+    with Simulator(["fdc100:1:SP1=80.0,PB=25.0", "fdc100:2:LOCK=1"], baud=9600, fmt="8N2") as sim:
+        assert tool("backup", sim.port, 1, "--format", "8N2", "-o", a).returncode == 0
+        sim.control({"op": "fault", "addr": 2, "kind": "exception", "code": 4, "fc": 16,
+                     "count": 1})
+        r = tool("restore", a, sim.port, 2, "--format", "8N2", "--download", "--yes")
+        assert r.returncode == 5, r.stdout + r.stderr
+        line = r.stderr.strip()
+        assert len(line.splitlines()) == 1 and "FC16 of 52 words at 0 failed" in line, line
+        assert "done: LOCK opened" in line and "run again" in line, line
+        assert sim.control({"op": "get", "addr": 2, "reg": "PB"})["eng"] != 25.0
+        again = tool("restore", a, sim.port, 2, "--format", "8N2", "--download", "--yes")
+        assert again.returncode == 0, again.stdout + again.stderr
+        assert sim.control({"op": "get", "addr": 2, "reg": "PB"})["eng"] == 25.0
+        assert tool("diff", a, "--port", sim.port, "--address", 2,
+                    "--format", "8N2").returncode == 0
+
+
 def test_bad_input_gets_one_line_and_its_status(tmp_path):
     bad = tmp_path / "bad.json"
     bad.write_text("{not json")
