@@ -68,6 +68,31 @@ def test_scan_tries_the_factory_addresses_first():
     assert [(int(x[0]), x[1]) for x in rows] == [(1, "MV-D94/VD"), (4, "MV-D94/VD")], out
 
 
+def test_scan_stopped_after_the_factory_address_lists_what_it_found():
+    """Ctrl-C once pass 1 is done: the instruments found so far are listed, exit 130."""
+    import signal
+    with Simulator(["mvd94:1:SV=80"], baud=9600, fmt="8N2") as sim:
+        proc = subprocess.Popen([sys.executable, TOOL, "scan", sim.port, "--no-progress"],
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        try:
+            head = []
+            for line in proc.stdout:
+                head.append(line)
+                if line.startswith("pass 1 done"):
+                    break
+            proc.send_signal(signal.SIGINT)
+            out, err = proc.communicate(timeout=60)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+    assert proc.returncode == 130, "".join(head) + out + err
+    assert any(x.split()[:2] == ["1", "MV-D94/VD"] for x in out.splitlines()), out
+    assert "pass 2 done" not in out
+    assert len(err.strip().splitlines()) == 1 and "interrupted" in err, err
+    assert "Traceback" not in err
+
+
 @pytest.mark.parametrize("source,target,first", [
     ("mvd94:1:SV=120.0,DP=1,TYPE=J,HILT=300.0,A1SP=5.0", "mvd94:2", "TYPE"),
     ("mts9:1:Decimal Set=2", "mts9:2", "Decimal Set")])

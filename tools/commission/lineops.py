@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import json
 import os
+import sys
 import time
 
 import instruments as ins
@@ -126,15 +127,37 @@ def scan(lib, args) -> list:
           f"(each silent address costs a request and the shims' shortest reply timeout)")
     for i, (title, p) in enumerate(plan, 1):
         probes = sum(len(a) for _, a in p)
-        print(f"  pass {i}: {title}: {probes} probe(s), at least {plan_seconds(p):.1f} s")
+        print(f"  pass {i}: {title}: {probes} probe(s), at least {plan_seconds(p):.1f} s",
+              flush=True)
     found, seen = [], set()
     bar = tqdm(total=round(total, 1), unit="s", disable=args.no_progress, leave=False,
                bar_format="{l_bar}{bar}| {n:.0f}/{total:.0f} s [{elapsed}<{remaining}]")
     t0 = time.monotonic()
+    try:
+        _passes(lib, args, plan, bar, found, seen, t0)
+    except KeyboardInterrupt:       # Ctrl-C: what was found so far is still reported
+        bar.close()
+        lib.shutdown()
+        raise Interrupted(found) from None
+    bar.close()
+    lib.shutdown()
+    return found
+
+
+class Interrupted(Exception):
+    """A scan stopped with Ctrl-C; .found: what it had found."""
+
+    def __init__(self, found: list):
+        super().__init__("interrupted")
+        self.found = found
+
+
+def _passes(lib, args, plan, bar, found, seen, t0):
+    from tqdm import tqdm
     for i, (title, p) in enumerate(plan, 1):
         for (baud, fmt, framing), pass_addrs in p:
             bus = open_line(lib, args.port, baud, fmt, framing, retries=0)
-            bar.set_description(f"pass {i} {baud} {fmt} {framing}")
+            bar.set_description(f"pass {i}/{len(plan)} {baud} {fmt} {framing}")
             for a in pass_addrs:
                 read = reader(lib, lib.open_device(bus, a))
                 rc, _ = read(3, 0, 1)
@@ -152,9 +175,7 @@ def scan(lib, args) -> list:
                     found.append(((baud, fmt, framing), f))
         tqdm.write(f"pass {i} done ({title}) after {time.monotonic() - t0:.1f} s: "
                    f"{len(found)} instrument(s) found so far")
-    bar.close()
-    lib.shutdown()
-    return found
+        sys.stdout.flush()
 
 
 def _find(lib, args):

@@ -23,6 +23,7 @@ from shims import Shims, ShimsError  # noqa: E402
 
 EXIT_OK, EXIT_DIFFERS, EXIT_USAGE, EXIT_PORT, EXIT_DEVICE, EXIT_PARTIAL, EXIT_FILE, EXIT_LIB = \
     0, 1, 2, 3, 4, 5, 6, 7
+EXIT_INTERRUPTED = 130
 
 
 class Fail(Exception):
@@ -96,10 +97,26 @@ def print_diff(rows) -> None:
 
 
 def cmd_scan(args, lib) -> int:
-    found = lineops.scan(lib, args)
+    try:
+        found, stopped = lineops.scan(lib, args), None
+    except lineops.Interrupted as err:
+        found, stopped = err.found, err
+    if stopped is not None:
+        print_found(args, found)
+        print(f"mbcommission: interrupted: the scan stopped before its end; {len(found)} "
+              "instrument(s) found until then (listed)", file=sys.stderr)
+        return EXIT_INTERRUPTED
     if not found:
         print("no instrument answered")
         return EXIT_DEVICE
+    print_found(args, found)
+    return EXIT_OK
+
+
+def print_found(args, found) -> None:
+    """The table and, per instrument, its ST declaration."""
+    if not found:
+        return
     print(f"\n{'address':>7}  {'model':<10} {'framing':<6} {'baud':>6}  format  identified by")
     for (baud, fmt, framing), f in found:
         print(f"{f.address:>7}  {f.model:<10} {f.framing.upper():<6} {baud:>6}  {f.format or fmt:<6}  "
@@ -109,7 +126,6 @@ def cmd_scan(args, lib) -> int:
             continue
         print(f"\n(* {f.model} at {f.address} *)\n" +
               ins.st_declaration(f, args.port, baud, f.format or fmt))
-    return EXIT_OK
 
 
 def cmd_backup(args, lib) -> int:
@@ -198,7 +214,7 @@ def main(argv=None) -> int:
         return err.status
     except KeyboardInterrupt:
         print("mbcommission: interrupted", file=sys.stderr)
-        return 130
+        return EXIT_INTERRUPTED
 
 
 if __name__ == "__main__":
