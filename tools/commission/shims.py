@@ -118,6 +118,12 @@ class Shims:
         buf = (ctypes.c_uint16 * 1)()
         return self._wait(self.lib.mbfb_post(dev, fc, addr, count, buf), count)
 
+    def write_block(self, dev: int, addr: int, values: list) -> int:
+        """FC16 of `values` from `addr`, confirmed by the shims: 0 or MBFB_E_*."""
+        buf = (ctypes.c_uint16 * len(values))(*[v & 0xFFFF for v in values])
+        return self._wait(self.lib.mbfb_post_write(dev, 16, addr, len(values), buf,
+                                                   WRITE_IDEMPOTENT), 0)[0]
+
     def write(self, dev: int, addr: int, value: int) -> int:
         """FC06, confirmed by the shims (an echo in step, or a read-back): 0 or MBFB_E_*."""
         buf = (ctypes.c_uint16 * 1)(value & 0xFFFF)
