@@ -75,15 +75,15 @@ def build(build_dir: str, work: str, sources: list[str], program: str) -> str:
     subprocess.run([iec2c, "-f", "-l", "-p", "-r", "-R", "-a", "-I",
                     os.path.join(home, "webserver", "lib"), "program.st"], cwd=work, check=True,
                    capture_output=True)
-    # the located-variable glue and the runner host library, as tools/runner's mbfb_st_program
+    # the located-variable glue and the ST test host library, as tests/fb's mbfb_st_program
     subprocess.run([sys.executable, os.path.join(ROOT, "tools", "runner", "mkglue.py"), work],
                    cwd=work, check=True)
     exe = os.path.join(work, "bench")
     subprocess.run(["g++", "-std=gnu++11", "-O2", "-w", "-I", os.path.join(home, "webserver", "core", "lib"),
-                    "-I", os.path.join(ROOT, "tools", "runner"), "-I", os.path.join(ROOT, "c_shims", "include"),
+                    "-I", os.path.join(ROOT, "tests", "fb"), "-I", os.path.join(ROOT, "c_shims", "include"),
                     "-I", work, "-include", "mbfb.h", "-include", "fbtest.h", "-o", exe,
                     "Config0.c", "Res0.c", "glue.c",
-                    os.path.join(build_dir, "tools", "runner", "libmbfb_runner_host.a"),
+                    os.path.join(build_dir, "tests", "fb", "libmbfb_test_host.a"),
                     os.path.join(build_dir, "c_shims", "libmbfb.a"), lm, "-lpthread",
                     f"-Wl,-rpath,{os.path.dirname(lm)}"], cwd=work, check=True)
     return exe

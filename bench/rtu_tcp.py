@@ -38,12 +38,13 @@ from wire_pace import cache_value, run, stop  # noqa: E402
 BAUD, FMT, DEVICE, FC, ADDR, COUNT = 9600, "8N2", "mvd94:1", 3, 0, 17
 
 
-def master(exe: str, port: str, seconds: float) -> tuple[float, int]:
+def master(exe: str, port: str, seconds: float, env: dict | None = None) -> tuple[float, int]:
     """wp_shims post on port for `seconds`; (good transactions per second, failed)."""
     out = tempfile.TemporaryFile(mode="w+")
     t0 = time.monotonic()
     proc = subprocess.Popen([exe, "post", port, str(BAUD), FMT, "1", str(FC), str(ADDR),
-                             str(COUNT)], stdout=out, stderr=subprocess.STDOUT, text=True)
+                             str(COUNT)], stdout=out, stderr=subprocess.STDOUT, text=True,
+                            env=env)
     try:
         time.sleep(seconds)
     finally:
@@ -58,23 +59,43 @@ def master(exe: str, port: str, seconds: float) -> tuple[float, int]:
     return int(m.group(1)) / elapsed, int(m.group(2))
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+def shortest_transaction() -> float:
+    """The line's shortest compliant FC03 transaction in seconds: t3.5, request, mean
+    turnaround 5.5 ms, reply (as wire_pace.py's share)."""
+    bits = 1 + int(FMT[0]) + (FMT[1] != "N") + int(FMT[2])
+    return (3.5 + 6 + 2 + 3 + 2 * COUNT + 2) * bits / BAUD + 0.0055
+
+
+def build_master(build: str, tmp: str, need=()) -> str:
+    """bench/wirepace/wp_shims.c linked with the shims of `build` into tmp; the executable.
+    `need`: more build outputs that must exist."""
+    lib = os.path.join(build, "c_shims", "libmbfb.a")
+    lm = cache_value(build, "MBFB_LM_OPENPLC_LIB") or cache_value(build, "MBFB_LM_DEBIAN_LIB")
+    missing = [p for p in (lib, *need) if not os.path.exists(p)]
+    if missing or not lm:
+        raise SystemExit(f"build {', '.join(missing) or 'libmodbus'} first (cmake --build {build})")
+    exe = os.path.join(tmp, "wp_shims")
+    run(["gcc", "-O2", "-I", os.path.join(ROOT, "c_shims", "include"), "-o", exe,
+         os.path.join(ROOT, "bench", "wirepace", "wp_shims.c"), lib, lm, "-lpthread", "-ldl",
+         f"-Wl,-rpath,{os.path.dirname(lm)}"])
+    return exe
+
+
+def bench_args(doc: str):
+    """The options of a side-by-side wire-share bench: --build, --runs, --seconds."""
+    ap = argparse.ArgumentParser(description=doc.split("\n")[0])
     ap.add_argument("--build", default=os.path.join(ROOT, "build"), help="cmake build dir")
     ap.add_argument("--runs", type=int, default=3)
     ap.add_argument("--seconds", type=float, default=5.0, help="each master run")
-    args = ap.parse_args()
-    lib = os.path.join(args.build, "c_shims", "libmbfb.a")
+    return ap.parse_args()
+
+
+def main() -> int:
+    args = bench_args(__doc__)
     ptyline = os.path.join(args.build, "tools", "sim", "ptyline", "mbfb-ptyline")
-    lm = cache_value(args.build, "MBFB_LM_OPENPLC_LIB") or cache_value(args.build, "MBFB_LM_DEBIAN_LIB")
-    if not (os.path.exists(lib) and os.path.exists(ptyline) and lm):
-        raise SystemExit(f"build the targets mbfb and mbfb-ptyline in {args.build} first")
     tmp = tempfile.mkdtemp(prefix="rtutcp-bench-")
     try:
-        exe = os.path.join(tmp, "wp_shims")
-        run(["gcc", "-O2", "-I", os.path.join(ROOT, "c_shims", "include"), "-o", exe,
-             os.path.join(ROOT, "bench", "wirepace", "wp_shims.c"), lib, lm, "-lpthread",
-             f"-Wl,-rpath,{os.path.dirname(lm)}"])
+        exe = build_master(args.build, tmp, [ptyline])
         res = {"serial": [], "gateway": []}
         fails = {"serial": 0, "gateway": 0}
         for r in range(args.runs):
@@ -94,9 +115,7 @@ def main() -> int:
                       file=sys.stderr, flush=True)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
-    bits = 1 + int(FMT[0]) + (FMT[1] != "N") + int(FMT[2])
-    char = bits / BAUD
-    shortest = (3.5 + 6 + 2 + 3 + 2 * COUNT + 2) * char + 0.0055   # t3.5, frames, turnaround
+    shortest = shortest_transaction()
     print(f"MV-D94 {BAUD} {FMT}, FC03 of {COUNT} registers; shortest transaction "
           f"{shortest * 1000:.1f} ms; {args.runs} runs of {args.seconds:g} s, medians")
     print("| path | tx/s | share | failed |")

@@ -1,15 +1,20 @@
 #!/usr/bin/env python3
 """Write the seed corpora of the fuzz harnesses (fuzz/corpus/<harness>/) from the worked
 frames of the manuals (the same frames tests/shims/test_frame.c checks byte for byte).
-Run it again after changing a harness's input layout; the files are committed (small)."""
+Run it again after changing a harness's input layout (with the project's venv:
+.venv/bin/python fuzz/seeds.py); the files are committed (small)."""
 import os
 import shutil
+import sys
 
 HERE = os.path.dirname(os.path.abspath(__file__))
+sys.path.insert(0, os.path.join(os.path.dirname(HERE), "tools", "sim"))
+from modsim.frames import crc_bytes, lrc  # noqa: E402  (pymodbus's CRC-16 and LRC)
 FC_SEL = {3: 0, 4: 1, 6: 2, 16: 3}
 
 # (request frame, reply frame) as printed or derived in the manuals, without check bytes:
-# SetPro MV-D94/VD 1.9, MT-S9 2.8, FDC-100 3.12 (DEVICES.md sections).
+# the SetPro MV/VD, MT-S9 and FDC-100 manuals, whose worked frames maps/*.json keep byte for
+# byte ("frames"; maps/README.md names each manual).
 PAIRS = [
     ("01 03 00 00 00 01", "01 03 02 03 E8"),             # MV-D94 read SV
     ("01 04 10 00 00 01", "01 04 02 00 1B"),             # MV-D94 read PV (FC04)
@@ -30,16 +35,8 @@ def b(hexs):
 
 
 def crc16(data):
-    crc = 0xFFFF
-    for x in data:
-        crc ^= x
-        for _ in range(8):
-            crc = (crc >> 1) ^ 0xA001 if crc & 1 else crc >> 1
-    return bytes([crc & 255, crc >> 8])
-
-
-def lrc(data):
-    return (-sum(data)) & 255
+    """The check bytes of an RTU frame, low byte first (pymodbus's CRC, as the simulator)."""
+    return crc_bytes(data)
 
 
 def ascii_frame(data):

@@ -211,15 +211,6 @@ def expected_words(dev, addr, count):
     return out
 
 
-def crc16(data: bytes) -> int:
-    crc = 0xFFFF
-    for b in data:
-        crc ^= b
-        for _ in range(8):
-            crc = (crc >> 1) ^ 0xA001 if crc & 1 else crc >> 1
-    return crc
-
-
 def request_frame(slave, fc, addr, count, values) -> bytes:
     if fc == 6:
         return bytes([slave, 6, addr >> 8, addr & 255, values[0] >> 8, values[0] & 255])

@@ -43,6 +43,13 @@ int main(int argc, char **argv) {
     cfg.stop_bits = f[2] - '0';
     cfg.framing = MBFB_FRAMING_RTU;
     cfg.retries = -1;
+    /* RS-485 direction control (bench/direction.py): MBFB_WP_DIRECTION = the MBFB_DIR_*
+       number, MBFB_WP_DIR_BEFORE_US / _AFTER_US its delays; unset: none */
+    const char *dir = getenv("MBFB_WP_DIRECTION"), *before = getenv("MBFB_WP_DIR_BEFORE_US"),
+               *after = getenv("MBFB_WP_DIR_AFTER_US");
+    cfg.direction = dir ? atoi(dir) : MBFB_DIR_NONE;
+    cfg.dir_before_us = before ? atoi(before) : 0;
+    cfg.dir_after_us = after ? atoi(after) : 0;
     int bus = mbfb_bus_open(&cfg);
     int dev = bus < 0 ? bus : mbfb_dev_open(bus, slave);
     if (dev < 0) {

@@ -68,6 +68,10 @@ extern "C" {
                                    did not show the value; not repeated (mbfb_post_write) */
 #define MBFB_E_BAUD         14  /* baud rate the serial driver cannot set exactly (when
                                    the port opens), or above 4000000 (mbfb_bus_open)    */
+#define MBFB_E_DIRECTION    15  /* RS-485 direction control refused when the port opens: the
+                                   driver has no kernel RS-485 mode, RTS cannot be set, the
+                                   GPIO chip or line is missing or busy, or libgpiod (v1,
+                                   libgpiod.so.2) is not installed; nothing was sent   */
 #define MBFB_E_EXCEPTION_BASE 128 /* + Modbus exception code                          */
 /* Function-block input errors (st_src/): found before anything is sent.              */
 #define MBFB_E_BAD_SLAVE     200 /* SlaveId 0 for a read/monitoring block, or > 247       */
@@ -91,6 +95,19 @@ extern "C" {
                                      baud <= 0, timeout < 0                             */
 #define MBFB_E_NOT_ENABLED   208 /* command on a device block whose Enable is FALSE     */
 
+/* ---- RS-485 direction control (README "Direction control") ------------------
+ * A half-duplex transceiver (MAX485 and the like) must drive the line while the master
+ * sends and release it before the device answers. Who switches it: */
+#define MBFB_DIR_NONE   0 /* the adapter or transceiver switches by itself (default)      */
+#define MBFB_DIR_KERNEL 1 /* the UART driver's RS-485 mode (TIOCSRS485): the kernel drives
+                             RTS around each frame, with the delays below (rounded up to ms) */
+#define MBFB_DIR_RTS    2 /* the worker asserts RTS before each request and releases it
+                             once the last bit has left (tcdrain + one character)        */
+#define MBFB_DIR_GPIO   3 /* the same with a GPIO line (Linux GPIO character device, through
+                             libgpiod v1 loaded at run time)                              */
+#define MBFB_DIR_MAX_DELAY_US 100000 /* dir_before_us / dir_after_us at most 100 ms        */
+#define MBFB_GPIO_CHIP_MAX 32        /* gpio_chip[] size, with its NUL                     */
+
 /* ---- setup ---------------------------------------------------------------- */
 
 /** Bus settings. Zero-initialise, then fill what you need. */
@@ -103,6 +120,14 @@ typedef struct mbfb_bus_config {
     int framing;              /* MBFB_FRAMING_*                                         */
     int response_timeout_ms;  /* 0 = derived from frame lengths and baud               */
     int retries;              /* extra attempts after the first; <0 = default (3)      */
+    int direction;            /* MBFB_DIR_*: who switches an RS-485 transceiver (serial) */
+    int dir_active_low;       /* 1: RTS released / the GPIO low while sending (the line's
+                                 idle level is the other one); 0: asserted / high       */
+    int dir_before_us;        /* line switched this long before the first bit           */
+    int dir_after_us;         /* and held this long after the last bit has left         */
+    char gpio_chip[MBFB_GPIO_CHIP_MAX]; /* MBFB_DIR_GPIO: "gpiochip0", "/dev/gpiochip0",
+                                 a chip number or label (gpiod_chip_open_lookup)          */
+    int gpio_line;            /* MBFB_DIR_GPIO: the line's offset on that chip          */
 } mbfb_bus_config_t;
 
 /** Open (or join) the bus on cfg->port. A serial port is identified by the device it
@@ -119,6 +144,15 @@ int mbfb_bus_open(const mbfb_bus_config_t *cfg);
  *  or the character 'N'/'E'/'O'. For calls from ST pragmas. */
 int mbfb_bus_open_args(const char *port, int port_len, int baud, int parity, int data_bits,
                        int stop_bits, int framing, int response_timeout_ms, int retries);
+
+/** mbfb_bus_open_args with the direction control (MBFB_DIR_*, see mbfb_bus_config_t);
+ *  gpio_chip need not be NUL-terminated (gpio_chip_len bytes are used, trailing blanks
+ *  trimmed). A direction mode other than NONE on tcp:// or with out-of-range delays or
+ *  GPIO settings is -MBFB_E_INVAL. For calls from ST pragmas (MB_LINE). */
+int mbfb_bus_open_line(const char *port, int port_len, int baud, int parity, int data_bits,
+                       int stop_bits, int framing, int response_timeout_ms, int retries,
+                       int direction, int dir_active_low, int dir_before_us, int dir_after_us,
+                       const char *gpio_chip, int gpio_chip_len, int gpio_line);
 
 /** Device handle for slave id `slave` on `bus` (0 = broadcast: writes only).
  *  Returns a device handle >= 0 or a negative error (-MBFB_E_INVAL for slave > 247). */

@@ -15,12 +15,13 @@
 
 static const char hexd[] = "0123456789ABCDEF";
 
-/* Send ':' + hex(frame + LRC) + CR LF. */
+/* Send ':' + hex(frame + LRC) + CR LF, the direction switched around it. */
 static int ascii_send(mbfb_bus_t *bus, const uint8_t *frame, int len)
 {
     char out[1 + 2 * (MBFB_FRAME_MAX + 1) + 2];
     uint8_t lrc = mbfb_lrc(frame, len);
-    int n = 0;
+    int64_t start;
+    int n = 0, rc;
 
     out[n++] = ':';
     for (int i = 0; i <= len; i++) {
@@ -30,7 +31,9 @@ static int ascii_send(mbfb_bus_t *bus, const uint8_t *frame, int len)
     }
     out[n++] = '\r';
     out[n++] = '\n';
-    return mbfb_fd_write_all(bus, (const uint8_t *)out, n);
+    if ((rc = mbfb_dir_begin(bus, &start)) != 0)
+        return rc;
+    return mbfb_dir_end(bus, start, len, mbfb_fd_write_all(bus, (const uint8_t *)out, n));
 }
 
 enum { A_IDLE, A_HEX, A_CR };

@@ -83,16 +83,19 @@ static int lm_connect(mbfb_bus_t *bus, modbus_t *ctx)
 
 /* Open and configure the serial port with libmodbus (every serial framing); a baud outside
  * libmodbus's table (which it would silently run at 9600) is then set exactly with termios2
- * (mbfb_baud.c): a driver that cannot set it closes the port again with -MBFB_E_BAUD. */
+ * (mbfb_baud.c), and the direction control put in place (mbfb_direction.c): a driver that
+ * refuses either closes the port again with -MBFB_E_BAUD or -MBFB_E_DIRECTION. */
 int mbfb_lm_serial_open(mbfb_bus_t *bus)
 {
     const mbfb_bus_config_t *c = &bus->cfg;
     int rc = lm_connect(bus, modbus_new_rtu(c->port, c->baud, c->parity, c->data_bits,
                                             c->stop_bits));
-    if (rc == 0 && !mbfb_lm_baud_ok(c->baud) && mbfb_serial_set_baud(bus->fd, c->baud) < 0) {
+    if (rc == 0 && !mbfb_lm_baud_ok(c->baud) && mbfb_serial_set_baud(bus->fd, c->baud) < 0)
+        rc = -MBFB_E_BAUD;
+    else if (rc == 0)
+        rc = mbfb_dir_open(bus); /* -MBFB_E_DIRECTION: closed again before any byte */
+    if (rc < 0 && bus->fd >= 0)
         mbfb_lm_close(bus);
-        return -MBFB_E_BAUD;
-    }
     return rc;
 }
 
@@ -110,6 +113,7 @@ static int tcp_open(mbfb_bus_t *bus)
 /* Close the port and free the libmodbus context. */
 void mbfb_lm_close(mbfb_bus_t *bus)
 {
+    mbfb_dir_close(bus);
     if (bus->be_priv) {
         modbus_close(ctx_of(bus));
         modbus_free(ctx_of(bus));
@@ -134,23 +138,34 @@ static void tcp_reconnect(mbfb_bus_t *bus)
     tcp_open(bus); /* on failure the port stays closed; the next request reopens */
 }
 
-/* Send a frame with libmodbus's framing (RTU CRC or MBAP header). */
+/* Send a frame with libmodbus's framing (RTU CRC or MBAP header), the direction switched
+ * around it on a serial line. */
 static int lm_send(mbfb_bus_t *bus, const uint8_t *frame, int len)
 {
     uint8_t raw[MBFB_FRAME_MAX]; /* OpenPLC's libmodbus takes a non-const pointer */
+    int64_t start;
+    int rc;
+
     memcpy(raw, frame, (size_t)len);
-    return modbus_send_raw_request(ctx_of(bus), raw, len) == -1 ? mbfb_errno_to_err(errno)
-                                                                : 0;
+    if ((rc = mbfb_dir_begin(bus, &start)) != 0)
+        return rc;
+    rc = modbus_send_raw_request(ctx_of(bus), raw, len) == -1 ? mbfb_errno_to_err(errno) : 0;
+    return mbfb_dir_end(bus, start, len, rc);
 }
 
 /* MT-S9 Type 2: the frame and 00 00 where the CRC goes, written to the port. */
 static int nocrc_send(mbfb_bus_t *bus, const uint8_t *frame, int len)
 {
     uint8_t raw[MBFB_FRAME_MAX];
+    int64_t start;
+    int rc;
+
     memcpy(raw, frame, (size_t)len);
     raw[len] = 0; /* "CRC check 0000" */
     raw[len + 1] = 0;
-    return mbfb_fd_write_all(bus, raw, len + 2);
+    if ((rc = mbfb_dir_begin(bus, &start)) != 0)
+        return rc;
+    return mbfb_dir_end(bus, start, len, mbfb_fd_write_all(bus, raw, len + 2));
 }
 
 /* Receive and check (framing, CRC) one reply with libmodbus; strip header and CRC

@@ -63,6 +63,21 @@ static int normalise(mbfb_bus_config_t *c)
         c->retries = MBFB_DEFAULT_RETRIES;
     if (c->retries > 20 || c->response_timeout_ms < 0 || c->response_timeout_ms > 60000)
         return MBFB_E_INVAL;
+    if (c->direction < MBFB_DIR_NONE || c->direction > MBFB_DIR_GPIO ||
+        (c->direction != MBFB_DIR_NONE && is_tcp(c->port)) || /* the gateway switches */
+        c->dir_before_us < 0 || c->dir_before_us > MBFB_DIR_MAX_DELAY_US ||
+        c->dir_after_us < 0 || c->dir_after_us > MBFB_DIR_MAX_DELAY_US)
+        return MBFB_E_INVAL;
+    c->dir_active_low = c->dir_active_low != 0;
+    c->gpio_chip[MBFB_GPIO_CHIP_MAX - 1] = 0;
+    if (c->direction == MBFB_DIR_GPIO && (c->gpio_chip[0] == 0 || c->gpio_line < 0))
+        return MBFB_E_INVAL; /* GPIO needs its chip and line */
+    if (c->direction != MBFB_DIR_GPIO) { /* ignored: equal for the conflict check */
+        memset(c->gpio_chip, 0, sizeof c->gpio_chip);
+        c->gpio_line = 0;
+    }
+    if (c->direction == MBFB_DIR_NONE)
+        c->dir_active_low = c->dir_before_us = c->dir_after_us = 0;
     if (c->framing == MBFB_FRAMING_TCP) { /* line settings unused; baud only for timing */
         c->baud = c->baud > 0 ? c->baud : 9600;
         c->parity = 'N';
@@ -125,7 +140,10 @@ static int same_settings(const mbfb_bus_config_t *a, const mbfb_bus_config_t *b)
 {
     return a->baud == b->baud && a->parity == b->parity && a->data_bits == b->data_bits &&
            a->stop_bits == b->stop_bits && a->framing == b->framing &&
-           a->response_timeout_ms == b->response_timeout_ms && a->retries == b->retries;
+           a->response_timeout_ms == b->response_timeout_ms && a->retries == b->retries &&
+           a->direction == b->direction && a->dir_active_low == b->dir_active_low &&
+           a->dir_before_us == b->dir_before_us && a->dir_after_us == b->dir_after_us &&
+           strcmp(a->gpio_chip, b->gpio_chip) == 0 && a->gpio_line == b->gpio_line;
 }
 
 /* The backend table of a framing on a port. */
@@ -217,23 +235,35 @@ int mbfb_bus_open(const mbfb_bus_config_t *cfg)
     return rc;
 }
 
-/* mbfb_bus_open with an IEC STRING's body (trailing blanks trimmed). */
-int mbfb_bus_open_args(const char *port, int port_len, int baud, int parity, int data_bits,
-                       int stop_bits, int framing, int response_timeout_ms, int retries)
+/* An IEC STRING's body (not NUL-terminated, trailing blanks trimmed) into buf[n]. 0, or
+ * -1 when it does not fit. */
+static int iec_string(const char *body, int len, char *buf, int n)
+{
+    int k = 0;
+    if (body == NULL || len < 0 || len >= n)
+        return -1;
+    while (k < len && body[k] != 0)
+        buf[k] = body[k], k++;
+    while (k > 0 && buf[k - 1] == ' ')
+        k--;
+    buf[k] = 0;
+    return 0;
+}
+
+/* mbfb_bus_open with IEC STRINGs and the direction control (MB_LINE). */
+int mbfb_bus_open_line(const char *port, int port_len, int baud, int parity, int data_bits,
+                       int stop_bits, int framing, int response_timeout_ms, int retries,
+                       int direction, int dir_active_low, int dir_before_us, int dir_after_us,
+                       const char *gpio_chip, int gpio_chip_len, int gpio_line)
 {
     static const char parities[] = {'N', 'E', 'O'};
     char buf[256];
     mbfb_bus_config_t c;
-    int n = 0;
 
-    if (port == NULL || port_len <= 0 || port_len >= (int)sizeof buf)
-        return -MBFB_E_INVAL;
-    while (n < port_len && port[n] != 0) /* an IEC STRING body is not NUL-terminated */
-        buf[n] = port[n], n++;
-    while (n > 0 && buf[n - 1] == ' ')
-        n--;
-    buf[n] = 0;
     memset(&c, 0, sizeof c);
+    if (port_len <= 0 || iec_string(port, port_len, buf, (int)sizeof buf) != 0 ||
+        iec_string(gpio_chip, gpio_chip_len, c.gpio_chip, MBFB_GPIO_CHIP_MAX) != 0)
+        return -MBFB_E_INVAL;
     c.port = buf;
     c.baud = baud;
     c.parity = (char)(parity >= 0 && parity <= 2 ? parities[parity] : parity);
@@ -242,7 +272,20 @@ int mbfb_bus_open_args(const char *port, int port_len, int baud, int parity, int
     c.framing = framing;
     c.response_timeout_ms = response_timeout_ms;
     c.retries = retries;
+    c.direction = direction;
+    c.dir_active_low = dir_active_low;
+    c.dir_before_us = dir_before_us;
+    c.dir_after_us = dir_after_us;
+    c.gpio_line = gpio_line;
     return mbfb_bus_open(&c);
+}
+
+/* mbfb_bus_open_line without direction control (the adapter switches). */
+int mbfb_bus_open_args(const char *port, int port_len, int baud, int parity, int data_bits,
+                       int stop_bits, int framing, int response_timeout_ms, int retries)
+{
+    return mbfb_bus_open_line(port, port_len, baud, parity, data_bits, stop_bits, framing,
+                              response_timeout_ms, retries, MBFB_DIR_NONE, 0, 0, 0, "", 0, 0);
 }
 
 /* Device handle for (bus, slave): found or allocated under the registry lock. */

@@ -23,6 +23,7 @@ const char *mbfb_strerror(int code)
         "write unconfirmed: no valid echo and the read-back did not show the value; "
         "not repeated",
         "baud rate the serial driver cannot set exactly",
+        "RS-485 direction control refused by the port, driver or GPIO line: nothing sent",
     };
     static const char *const exc[] = {
         "Modbus exception",

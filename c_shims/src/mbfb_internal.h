@@ -168,6 +168,21 @@ int  mbfb_lm_baud_ok(int baud);
  *  (mbfb_baud.c): 0, or -MBFB_E_BAUD when the driver refuses it or sets another rate. */
 int  mbfb_serial_set_baud(int fd, int baud);
 
+/* RS-485 direction control (mbfb_direction.c); the serial backends call these. With
+ * MBFB_DIR_NONE (and KERNEL, where the kernel switches) begin and end do nothing. */
+/** After the port opened: put it into bus->cfg.direction's mode, line idle. 0, or
+ *  -MBFB_E_DIRECTION when the port, driver or GPIO refuses it. */
+int  mbfb_dir_open(struct mbfb_bus *bus);
+/** Before the port closes: leave the mode, release the GPIO line. */
+void mbfb_dir_close(struct mbfb_bus *bus);
+/** Before a request's first byte: line to sending, dir_before_us waited; *start_us is
+ *  when the frame's first byte may go. 0 or -MBFB_E_PORTLOST. */
+int  mbfb_dir_begin(struct mbfb_bus *bus, int64_t *start_us);
+/** After writing the frame (frame_len: slave + PDU; sent_rc: the write's result): wait
+ *  until it has left the UART and dir_after_us, then line to receiving. Returns sent_rc
+ *  when it is an error, else 0 or -MBFB_E_PORTLOST. */
+int  mbfb_dir_end(struct mbfb_bus *bus, int64_t start_us, int frame_len, int sent_rc);
+
 /* serial helpers (mbfb_serial.c) */
 /** The watched silence of every serial framing (see mbfb_backend_t.quiet). */
 int  mbfb_serial_quiet(struct mbfb_bus *bus, int silence_us, int limit_us);
@@ -290,6 +305,7 @@ typedef struct mbfb_bus {
     mbfb_bus_config_t cfg;   /* normalised copy; cfg.port points to `port`        */
     const mbfb_backend_t *be;
     void *be_priv;           /* the backend's state (libmodbus context)           */
+    void *dir_priv;          /* the direction mode's state (mbfb_direction.c)     */
     mbfb_timing_t timing;
     int fd;                  /* the port's file descriptor, -1 when closed        */
     int64_t quiet_from_us;   /* the line is silent from this time on              */

@@ -492,10 +492,11 @@ static void port_lost(mbfb_bus_t *bus, mbfb_dev_t *dev)
     mbfb_slot_fail_queued(bus, MBFB_E_PORTLOST);
 }
 
-/* The port could not be opened (`err`: MBFB_E_NOPORT, or MBFB_E_BAUD for a rate the
- * driver cannot set): every running plan of the bus ends its refresh now with `err` (one
- * failed snapshot each, in this one pass), and none is due again before bus->reopen_us, so
- * the bus tries open() once per probe interval whatever the number of plans. */
+/* The port could not be opened (`err`: MBFB_E_NOPORT, MBFB_E_BAUD for a rate the
+ * driver cannot set, MBFB_E_DIRECTION for a direction mode it refuses): every running
+ * plan of the bus ends its refresh now with `err` (one failed snapshot each, in this one
+ * pass), and none is due again before bus->reopen_us, so the bus tries open() once per
+ * probe interval whatever the number of plans. */
 static void plans_no_port(mbfb_bus_t *bus, int64_t now, int err)
 {
     int n = __atomic_load_n(&bus->n_plans, __ATOMIC_ACQUIRE);
@@ -531,7 +532,7 @@ static int device_request(mbfb_bus_t *bus, op_t *op)
     if (bus->fd < 0 && (rc = bus->be->open(bus)) < 0) {
         /* plans try again only after a probe interval: no spinning on open() */
         int64_t now = mbfb_now_us();
-        int err = rc == -MBFB_E_BAUD ? MBFB_E_BAUD : MBFB_E_NOPORT;
+        int err = rc == -MBFB_E_BAUD || rc == -MBFB_E_DIRECTION ? -rc : MBFB_E_NOPORT;
         bus->reopen_us = now + (int64_t)MBFB_PROBE_FIRST_MS * 1000;
         set_error(dev, err);
         plans_no_port(bus, now, err); /* the caller's plan included: it publishes nothing */
@@ -674,7 +675,7 @@ static void run_refresh(mbfb_bus_t *bus, mbfb_plan_t *p)
         op.count = items[i].count;
         op.out = words + nwords;
         rc = device_request(bus, &op);
-        if (rc == MBFB_E_NOPORT || rc == MBFB_E_BAUD)
+        if (rc == MBFB_E_NOPORT || rc == MBFB_E_BAUD || rc == MBFB_E_DIRECTION)
             return; /* the port did not open: published with every plan (plans_no_port) */
         if (rc != MBFB_OK) {
             result = rc;

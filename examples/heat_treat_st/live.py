@@ -5,7 +5,7 @@
                      copy of OpenPLC gets plc_lib installed, compiles heat_treat_st.st with
                      OpenPLC's own compile_program.sh and runs its runtime core with the Modbus
                      TCP server on 127.0.0.1:5502; the screen reads it with pymodbus, as a SCADA.
-  --backend runner   the project's own runner (tools/runner/fb_host.cpp in program mode, built by
+  --backend runner   the project's own runner (tools/runner/fb_host.cpp, built by
                      CMake as heat_treat_st_runner; --runner-exe), where OpenPLC is missing: the
                      same scan loop, its located variables read from the snapshot file it writes
                      and set points written through its control socket, with OpenPLC's Modbus

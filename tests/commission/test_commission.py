@@ -31,30 +31,66 @@ def writes(sim):
 
 
 def test_scan_finds_exactly_the_instruments(tmp_path):
-    """Non-factory addresses and bauds on one line, and one answer that fits no map."""
+    """Non-factory addresses and bauds on one line, an MT-S9 on ASCII among the RTU
+    instruments, and one answer that fits no map."""
     devices = ["mvd94:7:SV=120.0,DP=1,BAUD=19.2K", "fdc100:12:SP1=150.0",
-               "mts9:21:Baud Rate Set=4", "fdc100:5"]
+               "mts9:21:Baud Rate Set=4,framing=rtu", "fdc100:5", "mts9:3:framing=ascii"]
     with Simulator(devices, baud=9600, fmt="8N2") as sim:
         sim.control({"op": "set", "addr": 5, "reg": "PROG", "raw": 9901})  # no such model
         r = tool("scan", sim.port, "--address", "1-25", "--baud", 9600, "--baud", 19200,
-                 "--format", "8N2", "--framing", "rtu", "--no-progress")
+                 "--format", "8N2", "--framing", "rtu", "--framing", "ascii", "--no-progress")
     assert r.returncode == 0, r.stderr
     rows = [line.split() for line in r.stdout.splitlines() if line[:7].strip().isdigit()]
-    got = sorted((int(x[0]), x[1], x[3]) for x in rows)
-    assert got == [(5, "unknown", "9600"), (7, "MV-D94/VD", "19200"), (12, "FDC-100", "9600"),
-                   (21, "MT-S9", "19200")], r.stdout
+    got = sorted((int(x[0]), x[1], x[2], x[3]) for x in rows)
+    assert got == [(3, "MT-S9", "ASCII", "9600"), (5, "unknown", "RTU", "9600"),
+                   (7, "MV-D94/VD", "RTU", "19200"), (12, "FDC-100", "RTU", "9600"),
+                   (21, "MT-S9", "RTU", "19200")], r.stdout
     assert "unknown Modbus device at 5, 9600 8N2 RTU" in r.stdout + r.stderr
     assert "PROG(71)=610 -> BTC-9100" in r.stdout          # the registers that made it
     assert "mvd94_7 : TempCtrl_MVD94;" in r.stdout and "Baud := 19200" in r.stdout
-
-
-def test_scan_finds_an_ascii_mts9():
-    """An MT-S9 speaking ASCII (the simulator carries one framing per line: its own line)."""
-    with Simulator(["mts9:3:framing=ascii"], baud=9600, fmt="8N1") as sim:
-        r = tool("scan", sim.port, "--address", "1-5", "--no-progress")
-    assert r.returncode == 0, r.stderr
-    assert any(x.split()[:3] == ["3", "MT-S9", "ASCII"] for x in r.stdout.splitlines()), r.stdout
     assert "Framing := 'ASCII'" in r.stdout
+
+
+def test_scan_tries_the_factory_addresses_first():
+    """The factory settings at the factory address (1 for all three models) before the other
+    addresses: a factory-new unit is found within seconds, the rest of the sweep after it."""
+    with Simulator(["mvd94:1:SV=80", "mvd94:4"], baud=9600, fmt="8N2") as sim:
+        r = tool("scan", sim.port, "--address", "1-6", "--no-progress")
+    assert r.returncode == 0, r.stderr
+    out = r.stdout
+    assert "pass 1: factory settings at the factory address: 3 probe(s)" in out, out
+    assert "pass 2: factory settings at the other addresses: 15 probe(s)" in out, out
+    done = [line for line in out.splitlines() if line.startswith("pass 1 done")]
+    assert done and "1 instrument(s) found so far" in done[0], out
+    assert float(done[0].split(" after ")[1].split()[0]) < 5.0, done[0]
+    assert out.index("pass 1 done") < out.index("pass 2 done")
+    rows = [line.split() for line in out.splitlines() if line[:7].strip().isdigit()]
+    assert [(int(x[0]), x[1]) for x in rows] == [(1, "MV-D94/VD"), (4, "MV-D94/VD")], out
+
+
+def test_scan_stopped_after_the_factory_address_lists_what_it_found():
+    """Ctrl-C once pass 1 is done: the instruments found so far are listed, exit 130."""
+    import signal
+    with Simulator(["mvd94:1:SV=80"], baud=9600, fmt="8N2") as sim:
+        proc = subprocess.Popen([sys.executable, TOOL, "scan", sim.port, "--no-progress"],
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        try:
+            head = []
+            for line in proc.stdout:
+                head.append(line)
+                if line.startswith("pass 1 done"):
+                    break
+            proc.send_signal(signal.SIGINT)
+            out, err = proc.communicate(timeout=60)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+    assert proc.returncode == 130, "".join(head) + out + err
+    assert any(x.split()[:2] == ["1", "MV-D94/VD"] for x in out.splitlines()), out
+    assert "pass 2 done" not in out
+    assert len(err.strip().splitlines()) == 1 and "interrupted" in err, err
+    assert "Traceback" not in err
 
 
 @pytest.mark.parametrize("source,target,first", [
@@ -113,6 +149,59 @@ def test_another_models_backup_is_refused_before_any_write(tmp_path):
         r = tool("restore", a, sim.port, 2, "--yes")
         assert r.returncode == 4 and "nothing written" in r.stderr, r.stderr
         assert writes(sim) == []
+
+
+def test_fdc_download_one_block_read_back(tmp_path):
+    """restore --download (FDC manual Example 1): a dry run first, then one FC16 of the 0x34
+    words at 0, the lock opened before and set as in the backup after; the unit stays at its
+    address; diff empty. Another model's backup is refused before the port is opened."""
+    a, mv = tmp_path / "fdc.json", tmp_path / "mv.json"
+    with Simulator(["fdc100:1:SP1H=400.0,SP1=300.0,PB=20.0,ALHY=2.0",
+                    "fdc100:2:SP1H=160.0,LOCK=1", "mvd94:3"], baud=9600, fmt="8N2") as sim:
+        assert tool("backup", sim.port, 1, "--format", "8N2", "-o", a).returncode == 0
+        assert tool("backup", sim.port, 3, "-o", mv).returncode == 0
+        sim.control({"op": "log", "clear": True})
+        dry = tool("restore", a, sim.port, 2, "--format", "8N2", "--download")
+        assert dry.returncode == 1 and "dry run" in dry.stdout and "FC16 of 52 words" in dry.stdout
+        assert writes(sim) == []
+        r = tool("restore", a, sim.port, 2, "--format", "8N2", "--download", "--yes")
+        assert r.returncode == 0, r.stdout + r.stderr
+        sent = [f["hex"].split() for f in writes(sim)]
+        blocks = [f for f in sent if f[1] == "10"]
+        assert len(blocks) == 1 and blocks[0][:7] == ["02", "10", "00", "00", "00", "34", "68"]
+        assert [f[2:4] for f in sent if f[1] == "06"] == [["00", "03"]]   # LOCK opened only
+        assert sim.control({"op": "get", "addr": 2, "reg": "ADDR"})["raw"] == 2
+        assert sim.control({"op": "get", "addr": 2, "reg": "SP1"})["eng"] == 300.0
+        after = tool("diff", a, "--port", sim.port, "--address", 2, "--format", "8N2")
+        assert after.returncode == 0 and "0 setting(s) differ" in after.stdout, after.stdout
+        sim.control({"op": "log", "clear": True})
+        refused = tool("restore", mv, sim.port, 3, "--download", "--yes")
+        assert refused.returncode == 2 and "nothing written" in refused.stderr, refused.stderr
+        assert len(refused.stderr.strip().splitlines()) == 1
+        other = tool("restore", a, sim.port, 3, "--download", "--yes")
+        assert other.returncode == 4 and "nothing written" in other.stderr, other.stderr
+        assert writes(sim) == []
+
+
+def test_fdc_download_refused_block_is_reported_and_a_rerun_finishes(tmp_path):
+    """The unit refuses the FC16 (exception 4, once): one line naming the step and what was
+    done (the lock opened), exit 5; the second run downloads the block."""
+    a = tmp_path / "fdc.json"
+    with Simulator(["fdc100:1:SP1=80.0,PB=25.0", "fdc100:2:LOCK=1"], baud=9600, fmt="8N2") as sim:
+        assert tool("backup", sim.port, 1, "--format", "8N2", "-o", a).returncode == 0
+        sim.control({"op": "fault", "addr": 2, "kind": "exception", "code": 4, "fc": 16,
+                     "count": 1})
+        r = tool("restore", a, sim.port, 2, "--format", "8N2", "--download", "--yes")
+        assert r.returncode == 5, r.stdout + r.stderr
+        line = r.stderr.strip()
+        assert len(line.splitlines()) == 1 and "FC16 of 52 words at 0 failed" in line, line
+        assert "done: LOCK opened" in line and "run again" in line, line
+        assert sim.control({"op": "get", "addr": 2, "reg": "PB"})["eng"] != 25.0
+        again = tool("restore", a, sim.port, 2, "--format", "8N2", "--download", "--yes")
+        assert again.returncode == 0, again.stdout + again.stderr
+        assert sim.control({"op": "get", "addr": 2, "reg": "PB"})["eng"] == 25.0
+        assert tool("diff", a, "--port", sim.port, "--address", 2,
+                    "--format", "8N2").returncode == 0
 
 
 def test_bad_input_gets_one_line_and_its_status(tmp_path):

@@ -35,12 +35,13 @@ def sim_spec(st_path: str) -> dict:
     m = re.search(r"\(\*@SIM(.*?)\*\)", text, re.S)
     if not m:
         raise SystemExit(f"{st_path}: no (*@SIM ... *) header")
-    spec = {"devices": [], "format": "8N2", "baud": 9600, "time-scale": 1.0, "transport": "pty"}
+    spec = {"devices": [], "format": "8N2", "baud": 9600, "time-scale": 1.0, "transport": "pty",
+            "pace": "0"}
     for item in m.group(1).split():
         key, _, value = item.partition("=")
         if key == "device":
             spec["devices"].append(value)
-        elif key in ("format", "baud", "time-scale", "transport"):
+        elif key in ("format", "baud", "time-scale", "transport", "pace"):
             spec[key] = value
         else:
             raise SystemExit(f"{st_path}: unknown @SIM key {key!r}")
@@ -54,6 +55,12 @@ def main() -> int:
     ap.add_argument("--skip")
     ap.add_argument("--baud", type=int, help="the line's baud instead of the @SIM header's "
                     "(the program reads it as MBFB_TEST_BAUD: T_BAUD)")
+    ap.add_argument("--direction", help="RS-485 direction mode under test (rts, gpio, kernel): "
+                    "the program runs under the test double (--double) and reads the mode as "
+                    "MBFB_TEST_DIRECTION (T_DIRECTION); its edges are checked afterwards")
+    ap.add_argument("--framing", default="", help="the framing under test (rtu, ascii, nocrc): "
+                    "MBFB_TEST_FRAMING (T_FRAMING), and framing=... of the @SIM MT-S9 devices")
+    ap.add_argument("--double", help="the test double's library (tests/shims/linedouble.c)")
     ap.add_argument("--timeout", type=float, default=400.0)
     args = ap.parse_args()
     if args.skip is not None:
@@ -67,6 +74,9 @@ def main() -> int:
     spec = sim_spec(args.st)
     if args.baud:
         spec["baud"] = args.baud
+    if args.framing:
+        spec["devices"] = [d + (",framing=" if d.count(":") > 1 else ":framing=") + args.framing
+                           if d.startswith("mts9:") else d for d in spec["devices"]]
     if spec["transport"] == "pymodbus-mvd94":
         return run_pymodbus(args)
     tmp = tempfile.mkdtemp(prefix="fbtest-")
@@ -75,22 +85,52 @@ def main() -> int:
         pty = spec["transport"] == "pty"
         with Simulator(spec["devices"], baud=int(spec["baud"]), fmt=spec["format"],
                        time_scale=float(spec["time-scale"]), transport=spec["transport"],
-                       link=link if pty else None) as sim:
+                       pace=spec["pace"] == "1", link=link if pty else None) as sim:
             port = link if pty else f"tcp://{sim.tcp[0]}:{sim.tcp[1]}"
             env = dict(os.environ, MBFB_TEST_PORT=port, MBFB_SIM_CONTROL=sim.control_path,
-                       MBFB_TEST_BAUD=str(spec["baud"]))
+                       MBFB_TEST_BAUD=str(spec["baud"]), MBFB_TEST_FRAMING=args.framing)
+            edges = os.path.join(tmp, "line.log")
+            if args.direction:
+                env.update(MBFB_TEST_DIRECTION=args.direction, LD_PRELOAD=args.double,
+                           LINEDOUBLE_PORT=link, LINEDOUBLE_LOG=edges,
+                           LINEDOUBLE_GPIOCHIP=DOUBLE_GPIOCHIP)
             try:
                 proc = subprocess.run([args.exe], env=env, timeout=args.timeout)
                 rc = proc.returncode
             except subprocess.TimeoutExpired:
                 print(f"FAIL: {args.exe} still running after {args.timeout} s (killed)")
                 rc = 1
+            if rc == 0 and args.direction:
+                rc = check_edges(edges, args.direction, spec["format"], int(spec["baud"]))
             if rc != 0:
                 print("--- simulator stderr (tail) ---")
                 print(sim.stderr()[-3000:])
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     return 0 if rc == 0 else 1
+
+
+DOUBLE_GPIOCHIP = "gpiochip-double"   # the chip the test double has (a program asks for it)
+
+
+def check_edges(path: str, mode: str, fmt: str, baud: int) -> int:
+    """The double's record of the run: every request framed by the line (line_edges.py)."""
+    sys.path.insert(0, os.path.join(os.path.dirname(HERE), "shims"))
+    import line_edges
+    bits = 1 + int(fmt[0]) + (fmt[1] != "N") + int(fmt[2])
+    with open(path, encoding="utf-8") as fh:
+        text = fh.read()
+    try:
+        got = line_edges.check(text, mode, 1e6 * bits / baud, T_DIR_BEFORE_US, T_DIR_AFTER_US)
+    except AssertionError as err:
+        print(f"FAIL: direction {mode}: {err}")
+        return 1
+    print(f"direction {mode}: {got['requests']} requests, each framed by the line "
+          f"(reply at least {got.get('min_margin_us', 0)} us after the line went down)")
+    return 0
+
+
+T_DIR_BEFORE_US, T_DIR_AFTER_US = 200, 100   # the delays t_direction.st sets
 
 
 def run_pymodbus(args) -> int:

@@ -1,4 +1,4 @@
-"""The runner's program mode (fb_host.cpp --run) on the example program, without a simulator
+"""The runner (fb_host.cpp --run) on the example program, without a simulator
 (its blocks just report no port): the snapshot of located variables, the control socket's
 set/get with every kind of bad input, --set, and a clean stop. Run by ctest (fb_runner_io) as
     RUNNER_EXE=build/tools/runner/heat_treat_st_runner python -m pytest tests/fb/test_runner_io.py

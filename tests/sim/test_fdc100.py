@@ -41,6 +41,27 @@ def test_example1_download_defaults(sim, raw_factory):
     sim.ctl("set", addr=1, reg="PARI", raw=2)
 
 
+def test_download_block_is_checked_as_one_set(raw_factory):
+    """Example 1's block brings SP1 with its limits: SP1 is checked against the block's own
+    SP1L..SP1H, not the unit's old ones (else a download to a unit with narrower limits fails);
+    an SP1 outside the block's limits is refused and nothing is written."""
+    words = EX1_WORDS.split()
+    words[42] = "0002"                                 # PARI None: this line is 8N1
+
+    def block(sp1):
+        body = "01 10 00 00 00 34 68 " + " ".join(w[:2] + " " + w[2:] for w in [sp1] + words[1:])
+        return crc(body)
+    with simctl.Simulator(["fdc100:1"], fmt="8N1") as s:
+        raw = raw_factory(s.port)
+        s.ctl("set", addr=1, reg="SP1H", raw=20500)    # SP1 may not exceed 20500 now
+        assert hexu(raw.xfer(block("6400"))) == crc("01 90 03")     # above the block's 6321
+        assert s.ctl("get", addr=1, reg="SP1H")["raw"] == 20500     # nothing written
+        assert hexu(raw.xfer(block("5208"))) == "01 10 00 00 00 34 C1 DE"
+        assert s.ctl("get", addr=1, reg="SP1")["raw"] == 0x5208
+        assert s.ctl("get", addr=1, reg="SP1H")["raw"] == 0x6321
+        assert hexu(raw.xfer(crc("01 06 00 00 64 00"))) == crc("01 86 03")   # FC06: limits
+
+
 def test_example2_aliases_128_and_64(sim, raw_factory):
     sim.ctl("plant", addr=1, hold=True, temp=25.0)
     raw = raw_factory(sim.port)

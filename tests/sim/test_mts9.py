@@ -90,14 +90,51 @@ def test_exceptions(rtu, raw_factory, request_hex, reply_hex):
     assert hexu(raw_factory(rtu.port).xfer(crc(request_hex))) == crc(reply_hex)
 
 
+def lrc_frame(body_hex):
+    """':' hex LRC CR LF of a frame body, the LRC computed here (two's complement of the sum)."""
+    body = bytes.fromhex(body_hex)
+    return b":" + (body + bytes([-sum(body) & 0xFF])).hex().upper().encode() + b"\r\n"
+
+
 def test_type_register_switches_framing(rtu, raw_factory):
-    """Type = 0 (ASCII) on an RTU line: the meter answers the write, then goes deaf."""
+    """Type = 0 (ASCII) on an RTU line: the meter answers the write, then is deaf to RTU and
+    answers ASCII on the same line (the other meter still answers RTU)."""
     raw = raw_factory(rtu.port)
     rtu.ctl("set", addr=2, reg="Author", raw=5)
     assert hexu(raw.xfer(crc("02 06 00 08 00 00"))) == crc("02 06 00 08 00 00")
     assert raw.xfer(crc("02 03 00 08 00 01")) == b""
+    assert raw.xfer(lrc_frame("02 03 00 08 00 01")) == lrc_frame("02 03 02 00 00")
+    assert hexu(raw.xfer(crc("01 03 00 08 00 01"))) == crc("01 03 02 00 01")
     rtu.ctl("set", addr=2, reg="Type", raw=1)
     assert hexu(raw.xfer(crc("02 03 00 08 00 01"))) == crc("02 03 02 00 01")
+
+
+def test_three_framings_on_one_line(raw_factory):
+    """An MV-D94 (RTU), an MT-S9 on ASCII and one on RTU without CRC on one line: each device
+    hears every byte and answers only frames of its own framing addressed to it."""
+    with simctl.Simulator(["mvd94:1:SV=123", "mts9:2:framing=ascii", "mts9:3:framing=nocrc"],
+                          fmt="8N2") as sim:
+        raw = raw_factory(sim.port, stop=2)
+        assert hexu(raw.xfer(crc("01 03 00 00 00 01"))) == crc("01 03 02 00 7B")
+        assert raw.xfer(lrc_frame("02 03 00 08 00 01")) == lrc_frame("02 03 02 00 00")
+        # no CRC at all, or a wrong one: the no-CRC meter answers, once, with a real CRC
+        assert hexu(raw.xfer("03 03 00 08 00 01")) == crc("03 03 02 00 02")
+        assert hexu(raw.xfer("03 03 00 08 00 01 00 00")) == crc("03 03 02 00 02")
+        # a frame in another framing than the addressed device's: silence
+        assert raw.xfer(crc("02 03 00 08 00 01")) == b""          # RTU to the ASCII meter
+        assert raw.xfer(lrc_frame("01 03 00 00 00 01")) == b""    # ASCII to the MV-D94
+        assert raw.xfer(lrc_frame("03 03 00 08 00 01")) == b""    # ASCII to the no-CRC meter
+        assert raw.xfer("01 03 00 00 00 01 00 00") == b""          # bad CRC to the MV-D94
+        # a write in ASCII reaches the ASCII meter only
+        assert raw.xfer(lrc_frame("02 06 00 09 00 05")) == lrc_frame("02 06 00 09 00 05")
+        assert sim.ctl("get", addr=2, reg="Author")["raw"] == 5
+        assert sim.ctl("get", addr=3, reg="Author")["raw"] == 0
+        # the frame log says which receiver took each frame
+        sim.log(clear=True)
+        raw.xfer(lrc_frame("02 03 00 08 00 01"))
+        got = {(f["dir"], f.get("framing"), f.get("info", "")) for f in sim.log(clear=True)}
+        assert ("rx", "ascii", "") in got and ("tx", "ascii", "") in got, got
+        assert ("rx", "rtu", "bad CRC") in got, got
 
 
 def test_nocrc_manual_frames(raw_factory):

@@ -1,11 +1,11 @@
 // v4_host.cpp - runs one STruC++-compiled ST test program (tests/fb/t_*.st with st_src and
-// fbtest.st, translated by v4/translate.py) scan by scan like tools/runner/fb_host.cpp does
+// fbtest.st, translated by v4/translate.py) scan by scan like tests/fb/fb_test_host.cpp does
 // for matiec's: one scan of PROGRAM main every 20 ms (the tests' task), the scan's TIME()
 // advanced by 20 ms per scan (strucpp::__CURRENT_TIME_NS, what Runtime v4 stamps), a real
 // 20 ms sleep between scans so the shims' worker and the bus run. Environment and exit codes
 // as fb_host's test mode (MBFB_TEST_PORT, MBFB_SIM_CONTROL, MBFB_MAX_SCANS; 0 = all checks
 // passed and T_DONE called). The fbt_* functions, the checks' tally and the end of the run are
-// tools/runner/fbtest_hooks.cpp's, the same that fb_host.cpp's test mode links.
+// tests/fb/fbtest_hooks.cpp's, the same that fb_test_host.cpp links.
 #include "program.hpp"
 #include "fbtest.h"
 

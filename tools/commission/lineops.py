@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import json
 import os
+import sys
 import time
 
 import instruments as ins
@@ -14,6 +15,8 @@ from shims import E_EXCEPTION_BASE, E_NOPORT, E_PORTLOST
 FACTORY = [(9600, "8N2", "rtu"),     # MV-D94 / VD: 9600 8N2 (manual 2.1, 4.1)
            (9600, "8E1", "rtu"),     # FDC-100: 9600 8E1 (manual Example 1)
            (9600, "8N1", "ascii")]   # MT-S9 in ASCII
+# The models a factory setting is for: their factory address is probed first on it.
+FACTORY_MODELS = {FACTORY[0]: ("mvd94", "mts9"), FACTORY[1]: ("fdc100",), FACTORY[2]: ("mts9",)}
 FORMATS = ["8N1", "8N2", "8E1", "8O1", "8E2", "8O2", "7N2", "7E1", "7O1", "7E2", "7O2"]
 MAX_RUN = 32          # words per backup read (the FDC's own limit is uncertain: 79 or 80)
 EXIT_PORT, EXIT_DEVICE = 3, 4
@@ -52,6 +55,31 @@ def settings_to_try(args) -> list:
             (not args.framing or s[2] in args.framing)]
 
 
+def factory_addresses(setting) -> list:
+    """The factory addresses of the models a factory setting is for: the default of each map's
+    address register (MV-D94 ADDR 27, FDC ADDR 39, MT-S9 ID Address Set 6: 1 for all three)."""
+    return sorted({ins.maps()[k].reg("ADDR").default for k in FACTORY_MODELS.get(setting, ())})
+
+
+def passes(todo: list, addrs: list) -> list:
+    """The scan in passes: [(title, [(setting, addresses)])]. First the factory settings at the
+    factory addresses (seconds), then the factory settings at the other addresses, then every
+    other setting (with --full or when narrowed) at all of them."""
+    factory = [s for s in todo if s in FACTORY]
+    first = [(s, [a for a in addrs if a in factory_addresses(s)]) for s in factory]
+    first = [(s, a) for s, a in first if a]
+    done = {(s, a) for s, al in first for a in al}
+    rest = [(s, [a for a in addrs if (s, a) not in done]) for s in factory]
+    out = [("factory settings at the factory address", first),
+           ("factory settings at the other addresses", [(s, a) for s, a in rest if a]),
+           ("the other line settings", [(s, addrs) for s in todo if s not in FACTORY])]
+    return [(title, plan) for title, plan in out if plan]
+
+
+def plan_seconds(plan) -> float:
+    return sum(probe_seconds(*s) * len(a) for s, a in plan)
+
+
 def addresses(text: str) -> list:
     out = []
     try:
@@ -88,37 +116,66 @@ def reader(lib, dev):
 
 
 def scan(lib, args) -> list:
-    """[((baud, format, framing), Found)] of every instrument that answered."""
+    """[((baud, format, framing), Found)] of every instrument that answered, in passes: the
+    factory settings at the factory addresses first, then the rest (see passes)."""
     from tqdm import tqdm
     check_port(args.port)
     todo, addrs = settings_to_try(args), addresses(args.address)
-    total = sum(probe_seconds(*s) for s in todo) * len(addrs)
+    plan = passes(todo, addrs)
+    total = sum(plan_seconds(p) for _, p in plan)
     print(f"{len(todo)} line setting(s) x {len(addrs)} address(es): at least {total:.0f} s "
           f"(each silent address costs a request and the shims' shortest reply timeout)")
+    for i, (title, p) in enumerate(plan, 1):
+        probes = sum(len(a) for _, a in p)
+        print(f"  pass {i}: {title}: {probes} probe(s), at least {plan_seconds(p):.1f} s",
+              flush=True)
     found, seen = [], set()
     bar = tqdm(total=round(total, 1), unit="s", disable=args.no_progress, leave=False,
                bar_format="{l_bar}{bar}| {n:.0f}/{total:.0f} s [{elapsed}<{remaining}]")
-    for baud, fmt, framing in todo:
-        bus = open_line(lib, args.port, baud, fmt, framing, retries=0)
-        bar.set_description(f"{baud} {fmt} {framing}")
-        for a in addrs:
-            read = reader(lib, lib.open_device(bus, a))
-            rc, _ = read(3, 0, 1)
-            bar.update(probe_seconds(baud, fmt, framing))
-            if rc != 0 and rc < E_EXCEPTION_BASE:
-                continue
-            f = ins.identify(read, a, baud, fmt, framing)
-            if f is None:
-                f = ins.Found("unknown", a, [f"answered FC03 at 0 ({'exception %d' % (rc - 128) if rc else 'data'});"
-                                             " fits none of MV-D94/VD, MT-S9, FDC-100"], framing=framing)
-                tqdm.write(f"unknown Modbus device at {a}, {baud} {fmt} {framing.upper()}")
-            key = (a, f.kind, baud, f.framing)
-            if key not in seen:
-                seen.add(key)
-                found.append(((baud, fmt, framing), f))
+    t0 = time.monotonic()
+    try:
+        _passes(lib, args, plan, bar, found, seen, t0)
+    except KeyboardInterrupt:       # Ctrl-C: what was found so far is still reported
+        bar.close()
+        lib.shutdown()
+        raise Interrupted(found) from None
     bar.close()
     lib.shutdown()
     return found
+
+
+class Interrupted(Exception):
+    """A scan stopped with Ctrl-C; .found: what it had found."""
+
+    def __init__(self, found: list):
+        super().__init__("interrupted")
+        self.found = found
+
+
+def _passes(lib, args, plan, bar, found, seen, t0):
+    from tqdm import tqdm
+    for i, (title, p) in enumerate(plan, 1):
+        for (baud, fmt, framing), pass_addrs in p:
+            bus = open_line(lib, args.port, baud, fmt, framing, retries=0)
+            bar.set_description(f"pass {i}/{len(plan)} {baud} {fmt} {framing}")
+            for a in pass_addrs:
+                read = reader(lib, lib.open_device(bus, a))
+                rc, _ = read(3, 0, 1)
+                bar.update(probe_seconds(baud, fmt, framing))
+                if rc != 0 and rc < E_EXCEPTION_BASE:
+                    continue
+                f = ins.identify(read, a, baud, fmt, framing)
+                if f is None:
+                    f = ins.Found("unknown", a, [f"answered FC03 at 0 ({'exception %d' % (rc - 128) if rc else 'data'});"
+                                                 " fits none of MV-D94/VD, MT-S9, FDC-100"], framing=framing)
+                    tqdm.write(f"unknown Modbus device at {a}, {baud} {fmt} {framing.upper()}")
+                key = (a, f.kind, baud, f.framing)
+                if key not in seen:
+                    seen.add(key)
+                    found.append(((baud, fmt, framing), f))
+        tqdm.write(f"pass {i} done ({title}) after {time.monotonic() - t0:.1f} s: "
+                   f"{len(found)} instrument(s) found so far")
+        sys.stdout.flush()
 
 
 def _find(lib, args):
@@ -228,4 +285,73 @@ def restore(lib, args, have: dict, want: dict):
             err = put(name, have["registers"][name]["raw"])
             if err:
                 return done, (name, err)
+    return done, None
+
+
+# The FDC's programming-port download (manual Example 1): one FC16 of the parameter block,
+# 0x34 words from address 0 (SP1 .. SEL8), at 9600 8E1.
+DOWNLOAD = {"fdc100": (0, 0x34)}
+
+
+def download_block(kind: str, have: dict, want: dict) -> list:
+    """The words of the block: the backup's, but the target's own line registers (ADDR, BAUD,
+    DATA, PARI, STOP, COMM: the unit stays on its line at its address) and its lock as it is
+    now (opened before, set after). KeyError names a register the backup lacks."""
+    start, count = DOWNLOAD[kind]
+    by_addr = {e["addr"]: (n, e) for n, e in want["registers"].items()}
+    keep = ins.LINE_REGS[kind] | {ins.LOCK[kind][0]}
+    words = []
+    for a in range(start, start + count):
+        if a not in by_addr:
+            raise KeyError(f"register {a}")
+        name, entry = by_addr[a]
+        words.append(have["registers"][name]["raw"] if name in keep else entry["raw"])
+    return words
+
+
+def download(lib, args, have: dict, want: dict):
+    """The block in one FC16, the lock opened before it and set to the backup's after; each
+    step read back. (steps done, None) or (steps done, (step, error))."""
+    read, f, _, dev = _find(lib, args)
+    kind, m = f.kind, ins.maps()[f.kind]
+    start, count = DOWNLOAD[kind]
+    words = download_block(kind, have, want)
+    lock, unlocked = ins.LOCK[kind]
+    done = []
+
+    def put(name, raw):
+        r = m.reg(name)
+        rc = lib.write(dev, r.addr, raw)
+        if rc == 0:
+            rc, w = read(3, r.addr, 1)
+            if rc == 0 and w[0] != raw & 0xFFFF:
+                return f"read back {w[0]}, not {raw & 0xFFFF}"
+        return None if rc == 0 else lib.strerror(rc)
+
+    if have["registers"][lock]["raw"] != unlocked:
+        words[m.reg(lock).addr - start] = unlocked
+        err = put(lock, unlocked)
+        if err:
+            return done, (f"{lock} (unlock)", err)
+        done.append(f"{lock} opened")
+    rc = lib.write_block(dev, start, words)
+    if rc != 0:
+        return done, (f"FC16 of {count} words at {start}", lib.strerror(rc))
+    back = []
+    for a in range(start, start + count, MAX_RUN):
+        n = min(MAX_RUN, start + count - a)
+        rc, w = read(3, a, n)
+        if rc != 0:
+            return done, ("read-back of the block", lib.strerror(rc))
+        back += w
+    wrong = [m.reg(start + i).name for i, (x, y) in enumerate(zip(words, back)) if x != y]
+    if wrong:
+        return done, ("read-back of the block", f"differs at {', '.join(wrong)}")
+    done.append(f"block of {count} words at {start} (read back)")
+    want_lock = want["registers"][lock]["raw"]
+    if want_lock != unlocked:
+        err = put(lock, want_lock)
+        if err:
+            return done, (lock, err)
+        done.append(f"{lock} = {want_lock}")
     return done, None

@@ -4,7 +4,7 @@
     mbcommission scan PORT [--baud B] [--format 8N1] [--framing rtu] [--address 1-10] [--full]
     mbcommission backup PORT ADDRESS [line options] -o FILE
     mbcommission diff A.json B.json        |  mbcommission diff A.json --port P --address N
-    mbcommission restore FILE PORT ADDRESS [line options] [--yes]
+    mbcommission restore FILE PORT ADDRESS [line options] [--yes] [--download]
 
 The Modbus engine is the project's C shims (the blocks' own), loaded as libmbfb.so. Exit
 statuses: tools/commission/README.md.
@@ -23,6 +23,7 @@ from shims import Shims, ShimsError  # noqa: E402
 
 EXIT_OK, EXIT_DIFFERS, EXIT_USAGE, EXIT_PORT, EXIT_DEVICE, EXIT_PARTIAL, EXIT_FILE, EXIT_LIB = \
     0, 1, 2, 3, 4, 5, 6, 7
+EXIT_INTERRUPTED = 130
 
 
 class Fail(Exception):
@@ -67,6 +68,9 @@ def parse(argv):
     r.add_argument("address", type=int)
     line_args(r)
     r.add_argument("--yes", action="store_true", help="write (default: dry run, nothing sent)")
+    r.add_argument("--download", action="store_true",
+                   help="FDC-100 only: the programming-port download of its manual's Example 1, "
+                        "the whole parameter block (0x34 words at 0) in one FC16, read back")
     args = p.parse_args(argv)
     if getattr(args, "address", None) is not None and args.cmd != "scan" and \
             not 1 <= args.address <= 247:
@@ -93,10 +97,26 @@ def print_diff(rows) -> None:
 
 
 def cmd_scan(args, lib) -> int:
-    found = lineops.scan(lib, args)
+    try:
+        found, stopped = lineops.scan(lib, args), None
+    except lineops.Interrupted as err:
+        found, stopped = err.found, err
+    if stopped is not None:
+        print_found(args, found)
+        print(f"mbcommission: interrupted: the scan stopped before its end; {len(found)} "
+              "instrument(s) found until then (listed)", file=sys.stderr)
+        return EXIT_INTERRUPTED
     if not found:
         print("no instrument answered")
         return EXIT_DEVICE
+    print_found(args, found)
+    return EXIT_OK
+
+
+def print_found(args, found) -> None:
+    """The table and, per instrument, its ST declaration."""
+    if not found:
+        return
     print(f"\n{'address':>7}  {'model':<10} {'framing':<6} {'baud':>6}  format  identified by")
     for (baud, fmt, framing), f in found:
         print(f"{f.address:>7}  {f.model:<10} {f.framing.upper():<6} {baud:>6}  {f.format or fmt:<6}  "
@@ -106,7 +126,6 @@ def cmd_scan(args, lib) -> int:
             continue
         print(f"\n(* {f.model} at {f.address} *)\n" +
               ins.st_declaration(f, args.port, baud, f.format or fmt))
-    return EXIT_OK
 
 
 def cmd_backup(args, lib) -> int:
@@ -134,6 +153,15 @@ def cmd_diff(args, lib) -> int:
 
 def cmd_restore(args, lib) -> int:
     want = load_backup(args.file)
+    if args.download and want["kind"] not in lineops.DOWNLOAD:
+        raise Fail(EXIT_USAGE, f"--download is the FDC-100's programming-port download; the "
+                   f"backup is of an {want['model']}: nothing written")
+    if args.download:
+        try:
+            lineops.download_block(want["kind"], want, want)
+        except KeyError as err:
+            raise Fail(EXIT_FILE, f"{args.file}: the backup lacks {err.args[0]} of the "
+                       "download block") from None
     have = lineops.backup(lib, args)
     if have["kind"] != want["kind"]:
         raise Fail(EXIT_DEVICE, f"the backup is of an {want['model']}, address {args.address} "
@@ -142,6 +170,19 @@ def cmd_restore(args, lib) -> int:
     print(f"{len(rows)} setting(s) differ" + (":" if rows else ""))
     print_diff(rows)
     if not rows:
+        return EXIT_OK
+    if args.download:
+        start, count = lineops.DOWNLOAD[want["kind"]]
+        how = f"the whole block, one FC16 of {count} words at {start}"
+        if not args.yes:
+            print(f"dry run: nothing written (--yes --download writes {how})")
+            return EXIT_DIFFERS
+        done, failed = lineops.download(lib, args, have, want)
+        if failed:
+            step, err = failed
+            raise Fail(EXIT_PARTIAL, f"{step} failed ({err}); done: {', '.join(done) or 'nothing'};"
+                       " run again to finish")
+        print(f"downloaded {how}, read back: {len(rows)} setting(s) changed")
         return EXIT_OK
     if not args.yes:
         print("dry run: nothing written (--yes writes them)")
@@ -173,7 +214,7 @@ def main(argv=None) -> int:
         return err.status
     except KeyboardInterrupt:
         print("mbcommission: interrupted", file=sys.stderr)
-        return 130
+        return EXIT_INTERRUPTED
 
 
 if __name__ == "__main__":

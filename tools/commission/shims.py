@@ -23,7 +23,8 @@ LIB_ENV = "MBFB_LIB"
 FRAMINGS = {"rtu": 0, "ascii": 1, "nocrc": 2, "tcp": 3}    # MBFB_FRAMING_*
 REQ_DONE, REQ_FAILED = 3, 4                                # MBFB_REQ_*
 WRITE_IDEMPOTENT = 0                                       # MBFB_WRITE_*
-E_TIMEOUT, E_NOPORT, E_PORTLOST, E_CONFLICT, E_BAUD = 1, 5, 6, 9, 14
+E_TIMEOUT, E_NOPORT, E_PORTLOST, E_CONFLICT, E_INVAL, E_BAUD, E_DIRECTION = 1, 5, 6, 9, 10, 14, 15
+DIRECTIONS = {"none": 0, "kernel": 1, "rts": 2, "gpio": 3}   # MBFB_DIR_*
 E_EXCEPTION_BASE = 128
 MAX_READ = 125
 
@@ -60,7 +61,8 @@ class Shims:
         except OSError as err:
             raise ShimsError(f"{path}: {err}") from None
         i, u16p = ctypes.c_int, ctypes.POINTER(ctypes.c_uint16)
-        lib.mbfb_bus_open_args.argtypes = [ctypes.c_char_p] + [i] * 8
+        lib.mbfb_bus_open_line.argtypes = ([ctypes.c_char_p] + [i] * 12 +
+                                           [ctypes.c_char_p, i, i])
         lib.mbfb_dev_open.argtypes = [i, i]
         lib.mbfb_post.argtypes = [i, i, i, i, u16p]
         lib.mbfb_post_write.argtypes = [i, i, i, i, u16p, i]
@@ -87,11 +89,16 @@ class Shims:
         return self.lib.mbfb_strerror(code).decode()
 
     def open_bus(self, port: str, baud: int, parity: str, data_bits: int, stop_bits: int,
-                 framing: str, timeout_ms: int = 0, retries: int = -1) -> int:
-        """A bus handle >= 0, or a negative -MBFB_E_* (bad settings: nothing is opened)."""
-        raw = port.encode()
-        return self.lib.mbfb_bus_open_args(raw, len(raw), baud, ord(parity), data_bits,
-                                           stop_bits, FRAMINGS[framing], timeout_ms, retries)
+                 framing: str, timeout_ms: int = 0, retries: int = -1, direction: str = "none",
+                 active_low: bool = False, before_us: int = 0, after_us: int = 0,
+                 gpio_chip: str = "", gpio_line: int = 0) -> int:
+        """A bus handle >= 0, or a negative -MBFB_E_* (bad settings: nothing is opened).
+        direction: who switches an RS-485 transceiver (DIRECTIONS, c_shims README)."""
+        raw, chip = port.encode(), gpio_chip.encode()
+        return self.lib.mbfb_bus_open_line(raw, len(raw), baud, ord(parity), data_bits,
+                                           stop_bits, FRAMINGS[framing], timeout_ms, retries,
+                                           DIRECTIONS[direction], int(active_low), before_us,
+                                           after_us, chip, len(chip), gpio_line)
 
     def open_device(self, bus: int, slave: int) -> int:
         return self.lib.mbfb_dev_open(bus, slave)
@@ -110,6 +117,12 @@ class Shims:
         """FC03/FC04: (0, the words) or (MBFB_E_* / 128 + exception code, [])."""
         buf = (ctypes.c_uint16 * 1)()
         return self._wait(self.lib.mbfb_post(dev, fc, addr, count, buf), count)
+
+    def write_block(self, dev: int, addr: int, values: list) -> int:
+        """FC16 of `values` from `addr`, confirmed by the shims: 0 or MBFB_E_*."""
+        buf = (ctypes.c_uint16 * len(values))(*[v & 0xFFFF for v in values])
+        return self._wait(self.lib.mbfb_post_write(dev, 16, addr, len(values), buf,
+                                                   WRITE_IDEMPOTENT), 0)[0]
 
     def write(self, dev: int, addr: int, value: int) -> int:
         """FC06, confirmed by the shims (an echo in step, or a read-back): 0 or MBFB_E_*."""

@@ -1,4 +1,4 @@
-"""Drive the project's own runner: an ST program built with fb_host.cpp in program mode
+"""Drive the project's own runner: an ST program built with fb_host.cpp
 (CMake target heat_treat_st_runner), the stand-in for OpenPLC's runtime where it is missing.
 
     with Runner(exe, sets={"CONFIG0.RES0.HEATTREAT.BUSPORT": bus}) as plc:

@@ -110,16 +110,16 @@ def build(args):
     addrs = [a for _, a, _ in specs]
     if len(set(addrs)) != len(addrs):
         raise ValueError("two devices share an address")
+    # Devices of different framings share a line (each hears every byte and answers frames of
+    # its own framing). An MT-S9 given no framing= takes the one framing the others were
+    # given, else RTU.
     framings = {v for k, _, items in specs if k == "mts9" for n, v in items if n.lower() == "framing"}
-    if len(framings) > 1:
-        raise ValueError(f"one line carries one framing, got {sorted(framings)}")
-    framing = framings.pop() if framings else "rtu"
-    if framing not in ("rtu", "nocrc", "ascii"):
-        raise ValueError(f"framing must be rtu, nocrc or ascii, not {framing!r}")
-    if framing != "rtu" and args.rtu_tcp:
-        raise ValueError(f"--rtu-tcp carries rtu framing only, not {framing}")
-    if framing != "rtu" and any(k != "mts9" for k, _, _ in specs):
-        raise ValueError(f"only mts9 devices speak {framing}; put the others on another line")
+    bad = framings - {"rtu", "nocrc", "ascii"}
+    if bad:
+        raise ValueError(f"framing must be rtu, nocrc or ascii, not {sorted(bad)[0]!r}")
+    framing = next(iter(framings)) if len(framings) == 1 else "rtu"
+    if args.rtu_tcp and framings - {"rtu"}:
+        raise ValueError(f"--rtu-tcp carries rtu framing only, not {sorted(framings - {'rtu'})[0]}")
     line = LineSettings(args.baud, data, parity, stop, framing, args.time_scale)
     devices = []
     for kind, addr, items in specs:

@@ -95,29 +95,41 @@ class Bus:
             raise KeyError(f"no device at address {addr}")
         return dev
 
-    def record(self, direction: str, data: bytes, info: str = ""):
+    def framings(self) -> set:
+        """The framings the devices speak now (a serial line has a receiver for each)."""
+        return {dev.framing for dev in self.devices}
+
+    def record(self, direction: str, data: bytes, info: str = "", framing: str | None = None):
+        """One frame log entry; `framing` on a line of several framings: which receiver."""
         entry = {"t": round(time.monotonic() - self.t0, 6), "dir": direction,
                  "hex": frames.hexs(data)}
         if info:
             entry["info"] = info
+        if framing:
+            entry["framing"] = framing
         self.log.append(entry)
         self.counters["rx_bytes" if direction == "rx" else "tx_bytes"] += len(data)
         if direction == "tx":
             self.counters["tx_frames"] += 1
 
-    def request(self, addr: int, pdu: bytes, master: dict | None = None) -> Reply | None:
+    def request(self, addr: int, pdu: bytes, master: dict | None = None,
+                framing: str | None = None) -> Reply | None:
         """Apply a well-formed request; the reply to send, or None for silence. `master`: the
-        character format of the sender's port as far as the transport sees it (Device.hears)."""
+        character format of the sender's port as far as the transport sees it (Device.hears).
+        `framing`: the framing the frame was decoded in on a serial line; only the devices that
+        speak it hear it (None: Modbus/TCP, every device)."""
         self.counters["rx_frames"] += 1
         if not pdu:
             return None
         if addr == 0:                       # broadcast: applied by all, answered by none
             self.counters["broadcasts"] += 1
             for dev in self.devices:
-                if not dev.offline and dev.hears(master):
+                if not dev.offline and framing in (None, dev.framing) and dev.hears(master):
                     dev.handle(pdu, broadcast=True)
             return None
         dev = self.device(addr)
+        if dev is not None and framing not in (None, dev.framing):
+            dev = None                      # a frame in another framing: not one for it
         if dev is None:
             self.counters["foreign"] += 1
             return None

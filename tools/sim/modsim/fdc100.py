@@ -52,6 +52,7 @@ class Fdc100(Device):
         self.mode = MODE_NORMAL
         self.at_left = 0.0
         self.eror_set = False
+        self.block = {}             # the words of an FC16 being checked: address -> word
         self.words[A["ADDR"]] = addr
         if line.baud in BAUDS:
             self.words[A["BAUD"]] = BAUDS.index(line.baud)
@@ -101,7 +102,11 @@ class Fdc100(Device):
 
     def in_range(self, reg, raw):
         if reg.name == "SP1":
-            return self.words[A["SP1L"]] <= raw <= self.words[A["SP1H"]]
+            # SP1 within SP1L..SP1H as they are after the write: an FC16 that brings new
+            # limits with SP1 (Example 1's whole parameter block) is checked as one set.
+            low = self.block.get(A["SP1L"], self.words[A["SP1L"]])
+            high = self.block.get(A["SP1H"], self.words[A["SP1H"]])
+            return low <= raw <= high
         if reg.name == "CMND":
             return raw in CMND.values()
         return super().in_range(reg, raw)
@@ -119,6 +124,7 @@ class Fdc100(Device):
     def write_block(self, fc, start, values):
         if not self.readable(16, start, len(values)):
             raise ModbusError(ILLEGAL_ADDRESS, f"write {start}+{len(values)}")
+        self.block = {ALIASES.get(start + i, start + i): w for i, w in enumerate(values)}
         try:
             super().write_block(fc, start, values)
         except ModbusError as err:
@@ -126,6 +132,8 @@ class Fdc100(Device):
                 self.words[A["EROR"]] = EROR_RO if "read-only" in str(err) else EROR_RANGE
                 self.eror_set = True
             raise
+        finally:
+            self.block = {}
 
     # ----- live words and aliases -----
     def word(self, addr):

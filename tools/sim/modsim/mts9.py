@@ -7,12 +7,13 @@ Author. The manual documents no exceptions, defaults or broadcast; the choices a
 """
 from __future__ import annotations
 
-from .regmap import ANY_LINE, ILLEGAL_VALUE, Device, ModbusError, load_map, regs_from_map
+from .regmap import ILLEGAL_VALUE, Device, ModbusError, load_map, regs_from_map
 
 MAP = load_map("mts9")
 REGS = regs_from_map(MAP)
 BAUDS = tuple(sorted(MAP.bauds(), key=MAP.bauds().get))         # index = code
 TYPES = {k.lower(): v for k, v in MAP.table("TYPE").items()}     # ascii 0, rtu 1, nocrc 2
+NAMES = {v: k for k, v in TYPES.items()}
 DIGITS = {int(k): tuple(v) for k, v in MAP.table("DIGITS").items()}
 DECIMALS_MAX = {int(k): v for k, v in MAP.table("DECIMALS_MAX").items()}
 # Author level needed to write each set-up register (cumulative reading of the Author matrix).
@@ -102,10 +103,10 @@ class MtS9(Device):
         return ((BAUDS[code] if code < len(BAUDS) else -1), self.line.data_bits,
                 self.line.parity, self.line.stop_bits)
 
-    def hears(self, master=None):
-        if master == ANY_LINE:
-            return True
-        return self.words[A_TYPE] == TYPES[self.line.framing] and super().hears(master)
+    @property
+    def framing(self):
+        """Its Type register: it hears and answers frames of that framing only."""
+        return NAMES.get(self.words[A_TYPE], "?")
 
     # ----- dynamics -----
     def tick(self, dt):

@@ -126,6 +126,11 @@ class Device:
         None where the manual does not say (the line's setting is taken). Default: the line."""
         return self.line.baud, self.line.data_bits, self.line.parity, self.line.stop_bits
 
+    @property
+    def framing(self) -> str:
+        """The framing the device speaks: RTU (the MT-S9 overrides it: its Type register)."""
+        return "rtu"
+
     def hears(self, master: dict | None = None) -> bool:
         """Does a frame sent by this master reach the device as sent? `master` holds the
         character format the master's port is set to, as far as the transport can see it

@@ -97,7 +97,7 @@ class RtuTcpLine(TcpLine):
             self.bus.bad_frame()
             return
         self.bus.record("rx", frame)
-        reply = self.bus.request(addr, pdu, None)     # the gateway's line is set like the line
+        reply = self.bus.request(addr, pdu, None, "rtu")   # the gateway's line is set like the line
         if reply is None:
             return
         out = frames.encode_rtu(reply.addr, reply.pdu)

@@ -59,8 +59,7 @@ class SerialLine:
         self.fd = self.slave_fd = None
         self.ser = None
         self.path = None
-        self.buf = bytearray()
-        self.timer = None
+        self.rx: dict = {}              # framing -> Receiver
         self.wlock = asyncio.Lock()
         self.generation = 0             # replies scheduled before a reopen are not sent after it
         self.counters = {"tx_overflow": 0}
@@ -125,9 +124,9 @@ class SerialLine:
         if self.fd is None:
             return
         asyncio.get_running_loop().remove_reader(self.fd)
-        if self.timer:
-            self.timer.cancel()
-        self.buf.clear()
+        for rx in self.rx.values():
+            rx.reset()
+        self.rx.clear()
         self.generation += 1
         if self.ser is not None:
             self.ser.close()
@@ -158,7 +157,25 @@ class SerialLine:
                 os.close(hold)
         return self.link or self.path
 
-    # ----- receive: frame end by length (pymodbus PDU sizes) or by t3.5 silence -----
+    # ----- receive: every device hears every byte, in its own framing -----
+    # One receiver per framing spoken on the line (RTU, RTU without CRC, ASCII), each with its
+    # own buffer and frame-end rule, like the UARTs and firmware of the devices on a real line:
+    # an RTU device takes ASCII text for a frame with a bad CRC, an ASCII device skips binary
+    # RTU bytes while it waits for ':'. A frame a receiver decodes goes to the device of that
+    # framing at its address (Bus.request). A line of one framing has one receiver.
+    def receivers(self) -> list:
+        """The receivers of the framings the devices speak now (an MT-S9's Type write changes
+        its framing after the reply), in a fixed order; a framing nobody speaks any more is
+        dropped with its buffer."""
+        want = [f for f in frames.FRAMINGS if f in self.bus.framings()]
+        for framing in list(self.rx):
+            if framing not in want:
+                self.rx.pop(framing).reset()
+        for framing in want:
+            if framing not in self.rx:
+                self.rx[framing] = Receiver(self, framing)
+        return [self.rx[f] for f in want]
+
     def _readable(self):
         try:
             data = os.read(self.fd, 4096)
@@ -168,103 +185,11 @@ class SerialLine:
             return                      # EIO while no master has the pty open
         if not data:
             return
-        self.buf += data
-        self._parse()
-
-    def _parse(self):
-        loop = asyncio.get_running_loop()
-        if self.line.framing == "ascii":
-            while True:
-                start = self.buf.find(b":")
-                if start < 0:
-                    if self.buf:
-                        self._garbage(bytes(self.buf))
-                    self.buf.clear()
-                    break
-                if start:
-                    self._garbage(bytes(self.buf[:start]))
-                    del self.buf[:start]
-                end = self.buf.find(b"\r\n")
-                if end < 0:
-                    break
-                frame = bytes(self.buf[:end + 2])
-                del self.buf[:end + 2]
-                self._frame(frame)
-        else:
-            while self.buf:
-                need = frames.rtu_request_length(bytes(self.buf))
-                if need is None or len(self.buf) < need:
-                    break
-                frame = bytes(self.buf[:need])
-                del self.buf[:need]
-                self._frame(frame)
-        if self.timer:
-            self.timer.cancel()
-            self.timer = None
-        if self.buf:
-            wait = self.line.t35 if self.line.framing != "ascii" else 1.0
-            self.timer = loop.call_later(wait, self._silence, loop.time())
-
-    def _silence(self, since: float):
-        """t3.5 of silence: the buffer is a whole frame unless its function says it is short."""
-        self.timer = None
-        if not self.buf:
-            return
-        loop = asyncio.get_running_loop()
-        need = frames.rtu_request_length(bytes(self.buf)) if self.line.framing != "ascii" else None
-        short = need is not None and len(self.buf) < need
-        # Too few bytes yet to know the length (address alone, or an FC16 header before its byte
-        # count): as short. A pty line (ptyline) stalled by the scheduler after the first byte
-        # otherwise cut a good request in two: "short frame", then "bad CRC", and no reply.
-        if need is None and self.line.framing != "ascii" and frames.rtu_length_pending(bytes(self.buf)):
-            short = True
-        # RTU-without-CRC: a frame that simply omits the two CRC bytes is accepted too.
-        if short and need is not None and self.line.framing == "nocrc" and len(self.buf) == need - 2:
-            frame = bytes(self.buf) + b"\0\0"
-            self.buf.clear()
-            self._frame(frame)
-            return
-        if short and loop.time() - since < LONG_GAP:
-            # A master's write split by the scheduler: wait a little longer than t3.5.
-            self.timer = loop.call_later(LONG_GAP - (loop.time() - since), self._silence, since)
-            return
-        frame = bytes(self.buf)
-        self.buf.clear()
-        if short or self.line.framing == "ascii":
-            self._garbage(frame)
-        else:
-            self._frame(frame)
-
-    def _garbage(self, data: bytes):
-        self.bus.record("rx", data, "garbage")
-        self.bus.bad_frame()
-
-    def _frame(self, frame: bytes):
-        try:
-            if self.line.framing == "ascii":
-                addr, pdu = frames.decode_ascii(frame)
-            else:
-                addr, pdu = frames.decode_rtu(frame, check_crc=self.line.framing == "rtu")
-        except frames.BadFrame as err:
-            self.bus.record("rx", frame, str(err))
-            self.bus.bad_frame()
-            return
-        self.bus.record("rx", frame)
-        reply = self.bus.request(addr, pdu, self.master_format())
-        if reply is None:
-            return
-        framing = self.line.framing
-        out = frames.encode(framing, reply.addr, reply.pdu)
-        delay, info = 0.0, ""
-        if reply.fault is not None:
-            out, delay = reply.queue.shape(reply.fault, out, framing,
-                                      lambda a: frames.encode(framing, a, reply.pdu),
-                                      lambda f: frames.corrupt_check(framing, f))
-            info = reply.fault.kind
-        if out is None:
-            self.bus.record("tx", b"", "drop")
-            return
-        asyncio.ensure_future(self._send(out, delay, info, self.generation, reply.sent))
+        receivers = self.receivers()
+        mixed = len(receivers) > 1
+        for rx in receivers:
+            rx.mixed = mixed
+            rx.feed(data)
 
     def master_format(self) -> dict | None:
         """The master's port settings as far as our own pty shows them: tcgetattr on the pty
@@ -287,13 +212,13 @@ class SerialLine:
                     "tools/sim/ptyline built (--ptyline PATH or MBFB_PTYLINE)"}
         return {"available": True, "stats": self.ptyline.stats()}
 
-    async def _send(self, data: bytes, delay: float, info: str, generation: int, sent):
+    async def _send(self, data: bytes, delay: float, info: str, generation: int, sent, tag=None):
         try:
-            await self._transmit(data, delay, info, generation)
+            await self._transmit(data, delay, info, generation, tag)
         finally:
             sent()                      # the device is free again (late replies: busy till now)
 
-    async def _transmit(self, data: bytes, delay: float, info: str, generation: int):
+    async def _transmit(self, data: bytes, delay: float, info: str, generation: int, tag=None):
         if self.pace and self.ptyline is None:
             delay += self.line.t35 + self.rng.uniform(0.001, 0.010)   # 1..10 ms turnaround
         if delay > 0:
@@ -301,7 +226,7 @@ class SerialLine:
         async with self.wlock:
             if generation != self.generation or self.fd is None:
                 return
-            self.bus.record("tx", data, info)
+            self.bus.record("tx", data, info, tag)
             if not self.pace:
                 self._write(data)
                 return
@@ -328,3 +253,133 @@ class SerialLine:
                 return False
             view = view[n:]
         return True
+
+
+class Receiver:
+    """One framing's receiver on a serial line: its buffer, its frame-end rule, its timer.
+    RTU and RTU without CRC: frame end by the function's length or t3.5 of silence. ASCII: a
+    frame is ':' ... CR LF; a ':' starts a frame afresh (what came before it is dropped), and
+    an unfinished frame is dropped after 1 s of silence."""
+
+    def __init__(self, line: SerialLine, framing: str):
+        self.line, self.framing = line, framing
+        self.bus = line.bus
+        self.settings = line.line
+        self.buf = bytearray()
+        self.timer = None
+        self.mixed = False              # other framings on the line too: log entries say which
+
+    def reset(self):
+        if self.timer:
+            self.timer.cancel()
+            self.timer = None
+        self.buf.clear()
+
+    @property
+    def tag(self):
+        return self.framing if self.mixed else None
+
+    def feed(self, data: bytes):
+        self.buf += data
+        self._parse()
+
+    def _parse(self):
+        loop = asyncio.get_running_loop()
+        if self.framing == "ascii":
+            while True:
+                start = self.buf.find(b":")
+                if start < 0:
+                    if self.buf:
+                        self._garbage(bytes(self.buf))
+                    self.buf.clear()
+                    break
+                if start:
+                    self._garbage(bytes(self.buf[:start]))
+                    del self.buf[:start]
+                end = self.buf.find(b"\r\n")
+                restart = self.buf.find(b":", 1)
+                if 0 < restart and (end < 0 or restart < end):
+                    self._garbage(bytes(self.buf[:restart]))    # a new ':' starts again
+                    del self.buf[:restart]
+                    continue
+                if end < 0:
+                    break
+                frame = bytes(self.buf[:end + 2])
+                del self.buf[:end + 2]
+                self._frame(frame)
+        else:
+            while self.buf:
+                need = frames.rtu_request_length(bytes(self.buf))
+                if need is None or len(self.buf) < need:
+                    break
+                frame = bytes(self.buf[:need])
+                del self.buf[:need]
+                self._frame(frame)
+        if self.timer:
+            self.timer.cancel()
+            self.timer = None
+        if self.buf:
+            wait = self.settings.t35 if self.framing != "ascii" else 1.0
+            self.timer = loop.call_later(wait, self._silence, loop.time())
+
+    def _silence(self, since: float):
+        """t3.5 of silence: the buffer is a whole frame unless its function says it is short."""
+        self.timer = None
+        if not self.buf:
+            return
+        loop = asyncio.get_running_loop()
+        need = frames.rtu_request_length(bytes(self.buf)) if self.framing != "ascii" else None
+        short = need is not None and len(self.buf) < need
+        # Too few bytes yet to know the length (address alone, or an FC16 header before its byte
+        # count): as short. A pty line (ptyline) stalled by the scheduler after the first byte
+        # otherwise cut a good request in two: "short frame", then "bad CRC", and no reply.
+        if need is None and self.framing != "ascii" and frames.rtu_length_pending(bytes(self.buf)):
+            short = True
+        # RTU-without-CRC: a frame that simply omits the two CRC bytes is accepted too.
+        if short and need is not None and self.framing == "nocrc" and len(self.buf) == need - 2:
+            frame = bytes(self.buf) + b"\0\0"
+            self.buf.clear()
+            self._frame(frame)
+            return
+        if short and loop.time() - since < LONG_GAP:
+            # A master's write split by the scheduler: wait a little longer than t3.5.
+            self.timer = loop.call_later(LONG_GAP - (loop.time() - since), self._silence, since)
+            return
+        frame = bytes(self.buf)
+        self.buf.clear()
+        if short or self.framing == "ascii":
+            self._garbage(frame)
+        else:
+            self._frame(frame)
+
+    def _garbage(self, data: bytes):
+        self.bus.record("rx", data, "garbage", self.tag)
+        self.bus.bad_frame()
+
+    def _frame(self, frame: bytes):
+        try:
+            if self.framing == "ascii":
+                addr, pdu = frames.decode_ascii(frame)
+            else:
+                addr, pdu = frames.decode_rtu(frame, check_crc=self.framing == "rtu")
+        except frames.BadFrame as err:
+            self.bus.record("rx", frame, str(err), self.tag)
+            self.bus.bad_frame()
+            return
+        self.bus.record("rx", frame, "", self.tag)
+        line = self.line
+        reply = self.bus.request(addr, pdu, line.master_format(), self.framing)
+        if reply is None:
+            return
+        framing = self.framing
+        out = frames.encode(framing, reply.addr, reply.pdu)
+        delay, info = 0.0, ""
+        if reply.fault is not None:
+            out, delay = reply.queue.shape(reply.fault, out, framing,
+                                      lambda a: frames.encode(framing, a, reply.pdu),
+                                      lambda f: frames.corrupt_check(framing, f))
+            info = reply.fault.kind
+        if out is None:
+            self.bus.record("tx", b"", "drop", self.tag)
+            return
+        asyncio.ensure_future(line._send(out, delay, info, line.generation, reply.sent, self.tag))

@@ -1,5 +1,5 @@
 /* fbtest.h - host functions the ST test-support blocks (fbtest.st) call from their pragmas.
- * Implemented once in fbtest_hooks.cpp, linked by both test hosts (fb_host.cpp's test mode,
+ * Implemented once in fbtest_hooks.cpp, linked by both test hosts (fb_test_host.cpp,
  * tests/strucpp/v4_host.cpp); force-included into the iec2c output of every test program. */
 #ifndef FBTEST_H
 #define FBTEST_H

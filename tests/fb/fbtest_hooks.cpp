@@ -1,6 +1,6 @@
 // fbtest_hooks.cpp - the host functions of the ST test-support blocks (fbtest.h, fbtest.st): the
-// one implementation, linked by both test hosts: fb_host.cpp's test mode (matiec / OpenPLC v3
-// programs, in the mbfb_runner_host library) and tests/strucpp/v4_host.cpp (STruC++ programs).
+// one implementation, linked by both test hosts: fb_test_host.cpp (matiec / OpenPLC v3
+// programs, in the mbfb_test_host library) and tests/strucpp/v4_host.cpp (STruC++ programs).
 // The host's side (fbt_host_*): it tells the scan number, asks whether to stop, and ends the run.
 // Test support only: the programs users run never call the fbt_* functions.
 #include "fbtest.h"

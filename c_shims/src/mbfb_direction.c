@@ -1,0 +1,262 @@
+/*
+ * mbfb_direction.c - RS-485 direction control: who drives a half-duplex transceiver's
+ * driver-enable while the master sends (README "Direction control").
+ *
+ * One small table per mode, like the backends: open (when the port opens; a port or
+ * driver that refuses the mode closes it again with -MBFB_E_DIRECTION, before any byte),
+ * drive (switch the line; NULL where the adapter or the kernel does it) and close. The
+ * mode's state is this file's (bus->dir_priv).
+ * - MBFB_DIR_KERNEL: the UART driver's RS-485 mode (TIOCSRS485, read back with
+ *   TIOCGRS485); the kernel switches RTS around every frame, so drive is NULL.
+ * - MBFB_DIR_RTS: TIOCMBIS / TIOCMBIC of TIOCM_RTS by the worker.
+ * - MBFB_DIR_GPIO: a line of a GPIO chip through libgpiod (v1 API, libgpiod.so.2), loaded
+ *   with dlopen when a bus first asks for it, so a program without GPIO needs no libgpiod
+ *   and OpenPLC's build needs no extra library. libgpiod and not the raw GPIO ioctls: it is
+ *   the maintained interface to the GPIO character device (chip lookup by name, number,
+ *   path or label; line requests with a consumer name), packaged by every distribution.
+ * For RTS and GPIO the worker switches the line on, waits dir_before_us, sends, waits until
+ * the frame has left the UART, waits dir_after_us and switches it off. "Has left" is the
+ * later of tcdrain() plus one character (the shift register: many drivers report the FIFO
+ * empty while the last character is still going out) and the frame's own time on the wire
+ * from the first write (a driver whose tcdrain returns early cannot make the frame shorter).
+ */
+#ifndef _GNU_SOURCE
+#define _GNU_SOURCE
+#endif
+#include <dlfcn.h>
+#include <errno.h>
+#include <linux/serial.h> /* struct serial_rs485 */
+#include <pthread.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/ioctl.h>
+#include <termios.h>
+#include <time.h>
+
+#include "mbfb_internal.h"
+
+/* ---- libgpiod v1, loaded at run time ------------------------------------- */
+struct gpiod_chip;
+struct gpiod_line;
+static struct {
+    struct gpiod_chip *(*chip_open_lookup)(const char *);
+    void (*chip_close)(struct gpiod_chip *);
+    struct gpiod_line *(*chip_get_line)(struct gpiod_chip *, unsigned int);
+    int (*line_request_output)(struct gpiod_line *, const char *, int);
+    int (*line_set_value)(struct gpiod_line *, int);
+    void (*line_release)(struct gpiod_line *);
+    int loaded; /* 1: every function found */
+} gpiod;
+static pthread_once_t gpiod_once = PTHREAD_ONCE_INIT;
+
+/* Load libgpiod.so.2 (libgpiod 1.x: Debian 12, Ubuntu 22.04, Raspberry Pi OS bookworm). */
+static void gpiod_load(void)
+{
+    void *h = dlopen("libgpiod.so.2", RTLD_NOW | RTLD_LOCAL);
+    if (h == NULL)
+        return;
+    /* POSIX: a dlsym result converts to a function pointer through memcpy */
+    void *f[6];
+    static const char *const names[6] = {
+        "gpiod_chip_open_lookup",    "gpiod_chip_close",       "gpiod_chip_get_line",
+        "gpiod_line_request_output", "gpiod_line_set_value",   "gpiod_line_release"};
+    for (int i = 0; i < 6; i++)
+        if ((f[i] = dlsym(h, names[i])) == NULL)
+            return; /* not the v1 API */
+    memcpy(&gpiod.chip_open_lookup, &f[0], sizeof f[0]);
+    memcpy(&gpiod.chip_close, &f[1], sizeof f[1]);
+    memcpy(&gpiod.chip_get_line, &f[2], sizeof f[2]);
+    memcpy(&gpiod.line_request_output, &f[3], sizeof f[3]);
+    memcpy(&gpiod.line_set_value, &f[4], sizeof f[4]);
+    memcpy(&gpiod.line_release, &f[5], sizeof f[5]);
+    gpiod.loaded = 1;
+}
+
+/* ---- the modes -------------------------------------------------------------- */
+typedef struct dir_state {
+    struct serial_rs485 saved;  /* KERNEL: the driver's RS-485 settings before ours   */
+    struct gpiod_chip *chip;    /* GPIO */
+    struct gpiod_line *line;
+} dir_state_t;
+
+typedef struct dir_mode {
+    /** Put the port into the mode, line idle (receiving). 0 or -MBFB_E_DIRECTION. */
+    int (*open)(mbfb_bus_t *bus, dir_state_t *st);
+    /** Drive the line: sending 1 before a frame, 0 after it. 0 or -MBFB_E_PORTLOST.
+     *  NULL: the adapter or the kernel switches. */
+    int (*drive)(mbfb_bus_t *bus, dir_state_t *st, int sending);
+    /** Leave the mode (the port is still open). */
+    void (*close)(mbfb_bus_t *bus, dir_state_t *st);
+} dir_mode_t;
+
+/* Kernel RS-485 mode: RTS at the polarity asked for while sending, the delays in ms. */
+static int kernel_open(mbfb_bus_t *bus, dir_state_t *st)
+{
+    const mbfb_bus_config_t *c = &bus->cfg;
+    struct serial_rs485 rs, back;
+
+    if (ioctl(bus->fd, TIOCGRS485, &st->saved) != 0)
+        return -MBFB_E_DIRECTION; /* no RS-485 support in this driver */
+    memset(&rs, 0, sizeof rs);
+    rs.flags = SER_RS485_ENABLED |
+               (c->dir_active_low ? SER_RS485_RTS_AFTER_SEND : SER_RS485_RTS_ON_SEND);
+    rs.delay_rts_before_send = (uint32_t)(c->dir_before_us + 999) / 1000;
+    rs.delay_rts_after_send = (uint32_t)(c->dir_after_us + 999) / 1000;
+    if (ioctl(bus->fd, TIOCSRS485, &rs) != 0 || ioctl(bus->fd, TIOCGRS485, &back) != 0)
+        return -MBFB_E_DIRECTION;
+    /* a driver may clamp what it cannot do: the mode and polarity must be as asked */
+    if ((back.flags & (SER_RS485_ENABLED | SER_RS485_RTS_ON_SEND | SER_RS485_RTS_AFTER_SEND)) !=
+        rs.flags) {
+        ioctl(bus->fd, TIOCSRS485, &st->saved);
+        return -MBFB_E_DIRECTION;
+    }
+    return 0;
+}
+
+static void kernel_close(mbfb_bus_t *bus, dir_state_t *st)
+{
+    ioctl(bus->fd, TIOCSRS485, &st->saved);
+}
+
+/* RTS: asserted while sending (TIOCM_RTS set), or released with dir_active_low. */
+static int rts_drive(mbfb_bus_t *bus, dir_state_t *st, int sending)
+{
+    int bit = TIOCM_RTS, on = sending != bus->cfg.dir_active_low;
+    (void)st;
+    return ioctl(bus->fd, on ? TIOCMBIS : TIOCMBIC, &bit) == 0 ? 0 : -MBFB_E_PORTLOST;
+}
+
+static int rts_open(mbfb_bus_t *bus, dir_state_t *st)
+{
+    return rts_drive(bus, st, 0) == 0 ? 0 : -MBFB_E_DIRECTION; /* a pty cannot */
+}
+
+/* GPIO: high while sending, or low with dir_active_low; requested as an output at idle. */
+static int gpio_drive(mbfb_bus_t *bus, dir_state_t *st, int sending)
+{
+    int on = sending != bus->cfg.dir_active_low;
+    return gpiod.line_set_value(st->line, on) == 0 ? 0 : -MBFB_E_PORTLOST;
+}
+
+static void gpio_close(mbfb_bus_t *bus, dir_state_t *st)
+{
+    (void)bus;
+    if (st->line != NULL)
+        gpiod.line_release(st->line);
+    if (st->chip != NULL)
+        gpiod.chip_close(st->chip);
+    st->line = NULL;
+    st->chip = NULL;
+}
+
+static int gpio_open(mbfb_bus_t *bus, dir_state_t *st)
+{
+    const mbfb_bus_config_t *c = &bus->cfg;
+
+    pthread_once(&gpiod_once, gpiod_load);
+    if (!gpiod.loaded || (st->chip = gpiod.chip_open_lookup(c->gpio_chip)) == NULL ||
+        (st->line = gpiod.chip_get_line(st->chip, (unsigned)c->gpio_line)) == NULL ||
+        gpiod.line_request_output(st->line, "mbfb", c->dir_active_low) != 0) {
+        st->line = NULL; /* not requested: nothing to release */
+        gpio_close(bus, st);
+        return -MBFB_E_DIRECTION;
+    }
+    return 0;
+}
+
+/* indexed by MBFB_DIR_* */
+static const dir_mode_t dir_modes[] = {
+    {NULL, NULL, NULL},                  /* NONE   */
+    {kernel_open, NULL, kernel_close},   /* KERNEL */
+    {rts_open, rts_drive, NULL},         /* RTS    */
+    {gpio_open, gpio_drive, gpio_close}, /* GPIO   */
+};
+
+static const dir_mode_t *mode_of(const mbfb_bus_t *bus)
+{
+    return &dir_modes[bus->cfg.direction];
+}
+
+/* ---- the backends' side ------------------------------------------------------ */
+
+/* Put the freshly opened port into the bus's mode. */
+int mbfb_dir_open(mbfb_bus_t *bus)
+{
+    const dir_mode_t *m = mode_of(bus);
+    dir_state_t *st;
+    int rc;
+
+    if (m->open == NULL)
+        return 0;
+    if ((st = (dir_state_t *)calloc(1, sizeof *st)) == NULL)
+        return -MBFB_E_NOMEM;
+    if ((rc = m->open(bus, st)) != 0) {
+        free(st);
+        return rc;
+    }
+    bus->dir_priv = st;
+    return 0;
+}
+
+/* Leave the mode before the port closes. */
+void mbfb_dir_close(mbfb_bus_t *bus)
+{
+    const dir_mode_t *m = mode_of(bus);
+    dir_state_t *st = (dir_state_t *)bus->dir_priv;
+
+    if (st == NULL)
+        return;
+    if (m->close != NULL)
+        m->close(bus, st);
+    free(st);
+    bus->dir_priv = NULL;
+}
+
+/* Sleep until the monotonic time `t_us` (mbfb_now_us's clock). */
+static void sleep_until(int64_t t_us)
+{
+    struct timespec ts;
+    ts.tv_sec = (time_t)(t_us / 1000000);
+    ts.tv_nsec = (long)(t_us % 1000000) * 1000;
+    while (clock_nanosleep(CLOCK_MONOTONIC, TIMER_ABSTIME, &ts, NULL) == EINTR) {
+    }
+}
+
+/* Switch the line to sending and wait dir_before_us; the time the frame may start. */
+int mbfb_dir_begin(mbfb_bus_t *bus, int64_t *start_us)
+{
+    const dir_mode_t *m = mode_of(bus);
+    int rc;
+
+    *start_us = 0;
+    if (m->drive == NULL || bus->dir_priv == NULL)
+        return 0;
+    if ((rc = m->drive(bus, (dir_state_t *)bus->dir_priv, 1)) != 0)
+        return rc;
+    if (bus->cfg.dir_before_us > 0)
+        sleep_until(mbfb_now_us() + bus->cfg.dir_before_us);
+    *start_us = mbfb_now_us();
+    return 0;
+}
+
+/* The frame of frame_len (slave + PDU) written from start_us with result sent_rc: wait
+ * until it has left the UART, then dir_after_us, and switch the line back to receiving. */
+int mbfb_dir_end(mbfb_bus_t *bus, int64_t start_us, int frame_len, int sent_rc)
+{
+    const dir_mode_t *m = mode_of(bus);
+    int64_t gone, on_wire;
+    int rc;
+
+    if (m->drive == NULL || bus->dir_priv == NULL)
+        return sent_rc;
+    while (tcdrain(bus->fd) != 0 && errno == EINTR) {
+    }
+    gone = mbfb_now_us() + bus->timing.char_us; /* the shift register's last character */
+    on_wire = start_us +
+              (int64_t)mbfb_wire_len(bus->cfg.framing, frame_len) * bus->timing.char_us;
+    if (gone < on_wire)
+        gone = on_wire;
+    sleep_until(gone + bus->cfg.dir_after_us);
+    rc = m->drive(bus, (dir_state_t *)bus->dir_priv, 0);
+    return sent_rc != 0 ? sent_rc : rc;
+}

@@ -1,0 +1,140 @@
+"""RS-485 direction control through the test double (tests/shims/linedouble.c, LD_PRELOAD):
+for RTU, ASCII and RTU without CRC, against the paced simulator, the shims switch RTS or a
+GPIO line around every request (up before its first byte by the set delay, down after its last
+byte has left and before the device's reply starts), or put the port into the kernel's RS-485
+mode once; a port or library that refuses the mode gives MBFB_E_DIRECTION (15) and no byte.
+
+The master runs in a child process under the double, through the shims' shared library
+(tools/commission/shims.py); the double records with the shims' clock (CLOCK_MONOTONIC)."""
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+
+HERE = os.path.dirname(os.path.abspath(__file__))
+ROOT = os.path.dirname(os.path.dirname(HERE))
+sys.path[:0] = [HERE, os.path.join(ROOT, "tools", "commission"), os.path.join(ROOT, "tools", "sim")]
+import line_edges  # noqa: E402
+from shims import E_DIRECTION, E_INVAL  # noqa: E402
+from simctl import Simulator  # noqa: E402
+
+DOUBLE = os.environ.get("MBFB_LINEDOUBLE", "")
+CHIP = "gpiochip-double"
+BAUD = 9600
+
+# one device per framing, with a register to read and one to write (value, read back)
+LINES = {
+    "rtu": dict(device="mvd94:1:SV=100.0,DP=1", fmt="8N2", stop=2, read=(4, 4096, 1), write=(0, 1234)),
+    "ascii": dict(device="mts9:1:framing=ascii", fmt="8N1", stop=1, read=(3, 7, 1), write=None),
+    "nocrc": dict(device="mts9:1:framing=nocrc", fmt="8N1", stop=1, read=(3, 7, 1), write=None),
+}
+
+MASTER = r"""
+import json, sys
+sys.path.insert(0, sys.argv[1])
+from shims import Shims
+a = json.loads(sys.argv[2])
+with Shims.load() as lib:
+    bus = lib.open_bus(a["port"], a["baud"], "N", 8, a["stop"], a["framing"],
+                       direction=a["mode"], active_low=a["active_low"], before_us=a["before"],
+                       after_us=a["after"], gpio_chip=a["chip"], gpio_line=a["line"])
+    out = {"bus": bus, "reads": [], "write": None}
+    if bus >= 0:
+        dev = lib.open_device(bus, 1)
+        for _ in range(a["n"]):
+            out["reads"].append(lib.read(dev, *a["read"]))
+        if a["write"]:
+            out["write"] = lib.write(dev, *a["write"])
+    print(json.dumps(out))
+"""
+
+pytestmark = pytest.mark.skipif(not os.path.isfile(DOUBLE),
+                                reason="MBFB_LINEDOUBLE (the test double's library) not built")
+
+
+def run_master(tmp_path, port, framing, mode, chip=CHIP, refuse=None, active_low=False,
+               before=0, after=0, n=4):
+    line = LINES[framing]
+    log = tmp_path / f"{framing}-{mode}.log"
+    env = dict(os.environ, LD_PRELOAD=DOUBLE, LINEDOUBLE_PORT=port, LINEDOUBLE_LOG=str(log),
+               LINEDOUBLE_GPIOCHIP=CHIP)
+    if refuse:
+        env["LINEDOUBLE_REFUSE"] = refuse
+    arg = dict(port=port, baud=BAUD, stop=line["stop"], framing=framing, mode=mode,
+               active_low=active_low, before=before, after=after, chip=chip, line=17,
+               read=line["read"], write=line["write"], n=n)
+    proc = subprocess.run([sys.executable, "-c", MASTER, os.path.join(ROOT, "tools", "commission"),
+                           json.dumps(arg)], env=env, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    text = log.read_text() if log.exists() else ""
+    return json.loads(proc.stdout), text
+
+
+@pytest.mark.parametrize("framing", ["rtu", "ascii", "nocrc"])
+@pytest.mark.parametrize("mode,active_low,before,after", [
+    ("rts", False, 0, 0), ("rts", True, 500, 200), ("gpio", False, 300, 0), ("gpio", True, 0, 0),
+    ("kernel", False, 1500, 0)])
+def test_edges_frame_every_request(tmp_path, framing, mode, active_low, before, after):
+    line = LINES[framing]
+    with Simulator([line["device"]], fmt=line["fmt"], baud=BAUD, pace=True) as sim:
+        out, log = run_master(tmp_path, sim.port, framing, mode, active_low=active_low,
+                              before=before, after=after)
+    assert out["bus"] >= 0
+    assert [rc for rc, _ in out["reads"]] == [0] * 4, out     # every read answered
+    if line["write"]:
+        assert out["write"] == 0                               # the write confirmed
+    char_us = 1e6 * (1 + 8 + line["stop"]) / BAUD
+    got = line_edges.check(log, mode, char_us, before, after, active_low)
+    assert got["requests"] >= 4
+
+
+@pytest.mark.parametrize("framing", ["rtu", "ascii", "nocrc"])
+@pytest.mark.parametrize("mode,chip,refuse", [
+    ("rts", CHIP, "rts"),            # a port without modem lines
+    ("kernel", CHIP, "rs485"),       # a driver without RS-485 mode
+    ("kernel", CHIP, "polarity"),    # one that drops the polarity asked for
+    ("gpio", "gpiochip-none", None)])  # no such GPIO chip
+def test_refused_mode_sends_nothing(tmp_path, framing, mode, chip, refuse):
+    line = LINES[framing]
+    with Simulator([line["device"]], fmt=line["fmt"], baud=BAUD) as sim:
+        out, log = run_master(tmp_path, sim.port, framing, mode, chip=chip, refuse=refuse, n=2)
+        frames = sim.log()
+    assert out["bus"] >= 0
+    assert [rc for rc, _ in out["reads"]] == [E_DIRECTION] * 2
+    assert "write" not in log.split()                          # no byte on the wire
+    assert frames == []                                        # and the device heard nothing
+
+
+def test_real_pty_refuses_rts_and_kernel_mode(tmp_path):
+    """Without the double: a pty has neither modem lines nor RS-485 mode, and a GPIO chip
+    that does not exist is refused by the real libgpiod (or its absence)."""
+    with Simulator([LINES["rtu"]["device"]]) as sim:
+        for mode in ("rts", "kernel", "gpio"):
+            arg = dict(port=sim.port, baud=BAUD, stop=2, framing="rtu", mode=mode,
+                       active_low=False, before=0, after=0, chip="gpiochip-none", line=0,
+                       read=LINES["rtu"]["read"], write=None, n=1)
+            proc = subprocess.run([sys.executable, "-c", MASTER,
+                                   os.path.join(ROOT, "tools", "commission"), json.dumps(arg)],
+                                  capture_output=True, text=True, timeout=60)
+            assert proc.returncode == 0, proc.stderr
+            assert json.loads(proc.stdout)["reads"][0][0] == E_DIRECTION, mode
+        frames = sim.log()
+    assert frames == []
+
+
+@pytest.mark.parametrize("kw", [
+    dict(direction="rts", before_us=100001), dict(direction="gpio", gpio_chip=""),
+    dict(direction="gpio", gpio_chip=CHIP, gpio_line=-1), dict(direction="rts", after_us=-1)])
+def test_bad_direction_settings_open_nothing(kw):
+    from shims import Shims
+    with Shims.load() as lib:
+        assert lib.open_bus("/dev/null-mbfb-none", BAUD, "N", 8, 2, "rtu", **kw) == -E_INVAL
+
+
+def test_direction_on_tcp_is_refused():
+    from shims import Shims
+    with Shims.load() as lib:
+        assert lib.open_bus("tcp://127.0.0.1:1", BAUD, "N", 8, 1, "rtu",
+                            direction="rts") == -E_INVAL
