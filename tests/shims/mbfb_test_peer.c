@@ -601,7 +601,7 @@ int t_serial_scenarios(const char *test, int *framing, const t_case_t *cases, in
     static char name[96];
     const char *rot = getenv("MBFB_TEST_ROTATE");
     int rotate = rot != NULL && rot[0] != '\0';
-    int k = rotate ? atoi(rot) : 0;
+    int k = rotate ? ((atoi(rot) % NF) + NF) % NF : 0;
 
     if (rotate)
         printf("%s: MBFB_TEST_ROTATE=%d: each case in one framing (every case and every "
