@@ -1,10 +1,17 @@
 #!/usr/bin/env bash
 # Runs every test: ./test.sh            (all suites)
-#                  ./test.sh -L shims   (one label: shims, sim, fb, e2e, editor)
+#                  ./test.sh -L shims   (one label: maps, shims, sim, fb, strucpp, commission,
+#                                        e2e, editor, soak)
 #                  ./test.sh -R crc     (tests whose name matches)
 # Extra arguments go to ctest. Configures build/ first and prints the configure summary (which
 # compiler toolchain, which libmodbus); after the run, each skipped test with its reason.
 # MBFB_BUILD_DIR: the build tree (default build).
+# MBFB_TEST_JOBS: tests run at once (default 8; the tests mostly wait on timeouts and paced
+# lines, so more than the cores). Those that must not share the machine's time say so in
+# their CMakeLists.txt (RUN_SERIAL; PROCESSORS for the heavy builds). A -j in the arguments
+# wins.
+# Temporary files go to $b/tmp (TMPDIR), which the run leaves empty: a test that leaves
+# something there is named after the run and fails it.
 set -euo pipefail
 cd "$(dirname "$0")"
 scripts/deps.sh     # Debian packages (.ci/apt-packages.txt); no-op when all present
@@ -23,9 +30,23 @@ if [ "$status" != 0 ]; then
     exit 1
 fi
 cmake --build "$b" -j"$(nproc)"
+jobs=(-j "${MBFB_TEST_JOBS:-8}")
+for a in "$@"; do
+    case $a in -j*|--parallel*) jobs=() ;; esac
+done
+tmp=$(cd "$b" && pwd)/tmp
+rm -rf "$tmp"
+mkdir -p "$tmp"
 set +e
-ctest --test-dir "$b" --output-on-failure --timeout 600 "$@" 2>&1 | tee "$b/ctest.log"
+TMPDIR=$tmp ctest --test-dir "$b" --output-on-failure --timeout 600 ${jobs[@]+"${jobs[@]}"} "$@" 2>&1 |
+    tee "$b/ctest.log"
 status=${PIPESTATUS[0]}
 set -e
+left=$(ls -A "$tmp")
+if [ -n "$left" ]; then
+    echo "test.sh: the tests left these in $tmp (TMPDIR):" >&2
+    ls -lA "$tmp" >&2
+    [ "$status" != 0 ] || status=1
+fi
 .venv/bin/python scripts/skipped.py "$b/ctest.log" "$b/Testing/Temporary/LastTest.log" || true
 exit $status

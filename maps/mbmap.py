@@ -6,7 +6,7 @@
     m.code("CMND", "RESET")           # 0x6825
     m.to_eng("SP1", 20249, {})        # 25.0 (INPT, DP, ALFN from the state dict, else defaults)
 
-Used by the simulator (tools/sim/modsim), mkdoc.py, check_spec.py, check_st.py and the tests.
+Used by the simulator (tools/sim/modsim), mkdoc.py, check_spec.py and the tests (tests/maps).
 Python standard library only.
 """
 from __future__ import annotations

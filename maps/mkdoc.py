@@ -31,8 +31,8 @@ the function windows, and the manual's worked frames byte for byte.
 Who reads them:
 - the simulator (`tools/sim/modsim`, through [mbmap.py](mbmap.py)): no register table is left
   in its Python;
-- the ST blocks' constants, checked by [check_st.py](check_st.py) (rule below);
-- the tests (`ctest -L maps`): the worked frames against the maps, this page against the JSON,
+- the ST blocks' constants, checked by [tests/maps/check_st.py](../tests/maps/check_st.py) (rule below);
+- the tests (`ctest -L maps`, in tests/maps): the worked frames against the maps, this page against the JSON,
   the ST constants against the maps;
 - [check_spec.py](check_spec.py), run by CI only, compares the maps with a resolved reading of
   the manuals kept outside the repository (`python3 maps/check_spec.py PATH/registers.json`).
@@ -53,7 +53,7 @@ To add a register: one entry in the device's `registers`, then `python3 maps/mkd
 | `range` | raw range accepted on a write (`null`: not checked, or a rule in `note`) |
 | `default` | raw; the factory value where the manual gives one (FDC: Example 1), else the simulator's choice; in brackets its engineering value with the other defaults (DP, INPT) |
 
-## Constants in ST (`maps/check_st.py`)
+## Constants in ST (`tests/maps/check_st.py`)
 A `VAR CONSTANT` (or `VAR_GLOBAL CONSTANT`) in `st_src/*.st` whose name starts with a device
 prefix is checked against that device's map; `ctest -R maps.st` fails on any difference, and
 when it finds no such constant at all:

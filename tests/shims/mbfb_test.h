@@ -161,7 +161,11 @@ typedef struct t_case {
     const char *name;
 } t_case_t;
 /** Run every case for RTU, ASCII and RTU-without-CRC in turn (setting *framing and
- *  t_scenario first); returns t_done(test). */
+ *  t_scenario first), printing each one's time; returns t_done(test).
+ *  MBFB_TEST_ROTATE=k (set by tests/shims/CMakeLists.txt for the sanitizer flavours): each
+ *  case runs in one framing only, case c in framing (c + k) mod 3, so every case and every
+ *  framing still run under the sanitizer without repeating the long waits that the plain
+ *  flavours run in full. */
 int t_serial_scenarios(const char *test, int *framing, const t_case_t *cases, int n);
 void t_sleep_ms(int ms);
 void t_sleep_us(long us);

@@ -92,7 +92,11 @@ void t_sleep_ms(int ms)
     t_sleep_us((long)ms * 1000);
 }
 
-static char tmp_dir[64];
+/* Under $TMPDIR when it is set and short (test.sh points it into the build tree, so a run
+ * leaves nothing in /tmp and parallel runs do not meet), else under /tmp. Short, because
+ * the links and sockets made in it must fit their buffers (peer_t.link, sun_path). */
+#define TMPDIR_MAX 64
+static char tmp_dir[TMPDIR_MAX + 32];
 
 /* At exit: remove what the tests put in the temporary directory (pty links), then it. */
 static void remove_tmpdir(void)
@@ -116,7 +120,10 @@ static void remove_tmpdir(void)
 const char *t_tmpdir(void)
 {
     if (!tmp_dir[0]) {
-        snprintf(tmp_dir, sizeof tmp_dir, "/tmp/mbfb_test_XXXXXX");
+        const char *base = getenv("TMPDIR");
+        if (base == NULL || base[0] != '/' || strlen(base) > TMPDIR_MAX)
+            base = "/tmp";
+        snprintf(tmp_dir, sizeof tmp_dir, "%s/mbfb_test_XXXXXX", base);
         if (mkdtemp(tmp_dir) == NULL) {
             perror("mkdtemp");
             exit(2);
@@ -590,14 +597,28 @@ int t_serial_scenarios(const char *test, int *framing, const t_case_t *cases, in
         {MBFB_FRAMING_ASCII, "ascii"},
         {MBFB_FRAMING_RTU_NOCRC, "rtu-nocrc"},
     };
+    enum { NF = (int)(sizeof framings / sizeof framings[0]) };
     static char name[96];
+    const char *rot = getenv("MBFB_TEST_ROTATE");
+    int rotate = rot != NULL && rot[0] != '\0';
+    int k = rotate ? ((atoi(rot) % NF) + NF) % NF : 0;
 
-    for (size_t f = 0; f < sizeof framings / sizeof framings[0]; f++) {
+    if (rotate)
+        printf("%s: MBFB_TEST_ROTATE=%d: each case in one framing (every case and every "
+               "framing run; the plain flavours run them all in every framing)\n", test, k);
+    for (int f = 0; f < NF; f++) {
         *framing = framings[f].framing;
         for (int c = 0; c < n; c++) {
+            /* rotated: case c in framing (c + k) mod 3; with fewer cases than framings,
+             * framing f also gets case (f + k) mod n so that every framing runs */
+            if (rotate && (c + k) % NF != f && (n >= NF || (f + k) % n != c))
+                continue;
+            int64_t t0 = t_now_us();
             snprintf(name, sizeof name, "%s: %s", framings[f].name, cases[c].name);
             t_scenario = name;
             cases[c].fn();
+            printf("  %-60s %6.1f s\n", name, (double)(t_now_us() - t0) / 1e6);
+            fflush(stdout);
         }
     }
     return t_done(test);

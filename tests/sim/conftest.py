@@ -13,6 +13,18 @@ sys.path[:0] = [HERE, os.path.join(os.path.dirname(os.path.dirname(HERE)), "tool
 REQUIRE = os.environ.get("MBFB_REQUIRE_TOOLCHAIN") == "1"
 
 
+def sim_fixture(devices, scope: str = "module", **kw):
+    """A pytest fixture that yields a started simulator (simctl.Simulator(devices, **kw)) and
+    stops it afterwards: `sim = sim_fixture(["fdc100:3"], baud=9600, fmt="8E1")` at module level."""
+    import simctl
+
+    @pytest.fixture(scope=scope)
+    def _sim():
+        with simctl.Simulator(devices, **kw) as sim:
+            yield sim
+    return _sim
+
+
 def mbpoll(port, *args, write=(), baud=9600, parity="none", stop=2, timeout=10):
     """Run mbpoll once in RTU mode (0-based references); write: values to write."""
     exe = shutil.which("mbpoll")

@@ -6,10 +6,10 @@ import time
 import minimalmodbus
 import pytest
 
-from conftest import crc, frames, instrument
+from conftest import crc, frames, instrument, sim_fixture
 import simctl
 
-sim = simctl.fixture(["mvd94:1:SV=1000", "mvd94:2", "mts9:5"], seed=42)
+sim = sim_fixture(["mvd94:1:SV=1000", "mvd94:2", "mts9:5"], seed=42)
 
 READ = crc("01 03 00 00 00 01")
 GOOD = "01 03 02 03 E8 B8 FA"

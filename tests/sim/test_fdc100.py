@@ -2,11 +2,10 @@
 aliases, exceptions with their EROR codes, commands, locks, scaling, power cycle."""
 import pytest
 
-from conftest import crc, frames, instrument, mbpoll, mbpoll_values
-import simctl
+from conftest import crc, frames, instrument, mbpoll, mbpoll_values, sim_fixture
 
 # Linux ptys cannot carry parity, so the line runs 8N1 and the FDC's PARI follows it (2 = None).
-sim = simctl.fixture(["fdc100:1", "fdc100:3:SP1=150.0"], fmt="8N1", time_scale=20)
+sim = sim_fixture(["fdc100:1", "fdc100:3:SP1=150.0"], fmt="8N1", time_scale=20)
 
 
 @pytest.fixture

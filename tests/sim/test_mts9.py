@@ -3,11 +3,11 @@ values low word first, counting, Over-Flow, Decimal Set and the Author gate."""
 import minimalmodbus
 import pytest
 
-from conftest import crc, frames, instrument, mbpoll, mbpoll_values
+from conftest import crc, frames, instrument, mbpoll, mbpoll_values, sim_fixture
 import simctl
 
-rtu = simctl.fixture(["mts9:1:framing=rtu,digits=6", "mts9:2:rate=5000,digits=4"],
-                     fmt="8N1", scope="module")
+rtu = sim_fixture(["mts9:1:framing=rtu,digits=6", "mts9:2:rate=5000,digits=4"],
+                  fmt="8N1", scope="module")
 
 
 @pytest.fixture

@@ -5,10 +5,10 @@ import os
 
 import pytest
 
-from conftest import crc, frames, instrument, mbpoll, mbpoll_values
+from conftest import crc, frames, instrument, mbpoll, mbpoll_values, sim_fixture
 import simctl
 
-sim = simctl.fixture(["mvd94:1:SV=100.0,DP=1", "vd:2:SV=1000", "mvd94:7"], scope="module")
+sim = sim_fixture(["mvd94:1:SV=100.0,DP=1", "vd:2:SV=1000", "mvd94:7"], scope="module")
 
 
 @pytest.fixture(autouse=True)

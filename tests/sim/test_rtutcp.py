@@ -8,10 +8,10 @@ import time
 from pymodbus import FramerType
 from pymodbus.client import ModbusTcpClient
 
+from conftest import sim_fixture
 from modsim import frames
-import simctl
 
-sim = simctl.fixture(["mvd94:1:SV=1000", "fdc100:3", "mts9:5"], transport="rtu-tcp")
+sim = sim_fixture(["mvd94:1:SV=1000", "fdc100:3", "mts9:5"], transport="rtu-tcp")
 
 
 def rtu(hexstr: str) -> bytes:

@@ -7,10 +7,9 @@ import time
 import pytest
 from pymodbus.client import ModbusTcpClient
 
-from conftest import REQUIRE, mbpoll_values
-import simctl
+from conftest import REQUIRE, mbpoll_values, sim_fixture
 
-sim = simctl.fixture(["mvd94:1:SV=1000", "fdc100:3", "mts9:5"], transport="tcp")
+sim = sim_fixture(["mvd94:1:SV=1000", "fdc100:3", "mts9:5"], transport="tcp")
 
 
 @pytest.fixture

@@ -1,7 +1,8 @@
 #!/usr/bin/env python3
 """tests/strucpp: the blocks under STruC++ (OpenPLC v4). Label strucpp. See v4/README.md.
 
-  run_strucpp.py build   BUILD_DIR             build STruC++ + the v4 package (target mbfb_v4)
+  run_strucpp.py build   BUILD_DIR [FB_TARGET...]  build STruC++ + the v4 package (target mbfb_v4),
+                                               then the fb programs (their tests say if one fails)
   run_strucpp.py layout  V4_DIR                a program using the library, laid out and built
                                                as Runtime v4's Makefile.strucpp does, dlopen'ed
   run_strucpp.py gap     V4_DIR GAP.st         the gap still there (STruC++ still refuses it)
@@ -34,6 +35,17 @@ def run(cmd, **kw):
     return p.returncode, p.stdout + p.stderr
 
 
+def build(build_dir, target):
+    """cmake --build of one target, one at a time in the build tree: the strucpp tests run in
+    parallel (ctest -j) and two ninja runs in one tree would race on its log and on the targets
+    they share (mbfb, STruC++). The lock is held for the build only, not for the test run."""
+    import fcntl
+    with open(os.path.join(build_dir, ".mbfb-test-build.lock"), "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        # niced: the tests running beside it (ctest -j) wait on the wall clock
+        return run(["nice", "-n", "10", "cmake", "--build", build_dir, "--target", target, "-j2"])
+
+
 def need(v4):
     reason = os.environ.get("MBFB_STRUCPP_REASON", "")
     if reason:
@@ -44,10 +56,10 @@ def need(v4):
     return cli
 
 
-def cmd_build(build_dir):
+def cmd_build(build_dir, fb_targets=()):
     if os.environ.get("MBFB_STRUCPP_REASON"):
         skip(os.environ["MBFB_STRUCPP_REASON"])
-    rc, out = run(["cmake", "--build", build_dir, "--target", "mbfb_v4", "-j2"])
+    rc, out = build(build_dir, "mbfb_v4")
     print(out[-6000:])
     logs = ""
     for name in ("strucpp-build.log", "libmodbus-fetch.log"):
@@ -64,6 +76,12 @@ def cmd_build(build_dir):
     if rc:
         print("FAIL: target mbfb_v4 did not build")
         sys.exit(1)
+    # The fb programs now, one build after another, before their tests start (ctest fixture
+    # strucpp): then those tests run in parallel without compiling beside each other. A program
+    # that does not build is reported by its own test (strucpp_fb_*), which builds it again.
+    failed = [t for t in fb_targets if build(build_dir, t)[0]]
+    print(f"fb programs built: {len(fb_targets) - len(failed)} of {len(fb_targets)}"
+          + (f" (not built, see their tests: {' '.join(failed)})" if failed else ""))
     print("PASS: STruC++ built, st_src translated, generated C++ linked with the shims, package made")
 
 
@@ -180,7 +198,7 @@ def cmd_gap(v4, gap):
 def cmd_fb(build_dir, target, exe, st):
     """One tests/fb program under STruC++: build it, then run it like label fb does."""
     need(os.path.join(build_dir, "v4"))
-    rc, out = run(["cmake", "--build", build_dir, "--target", target, "-j2"])
+    rc, out = build(build_dir, target)
     if rc:
         print(out[-6000:])
         print(f"FAIL: {os.path.basename(st)} does not build under STruC++")
@@ -232,7 +250,7 @@ def main():
         print("usage: run_strucpp.py build BUILD_DIR | layout V4_DIR | gap V4_DIR GAP.st | skip REASON")
         sys.exit(2)
     if a[0] == "build":
-        cmd_build(a[1])
+        cmd_build(a[1], a[2:])
     elif a[0] == "layout":
         cmd_layout(a[1])
     elif a[0] == "gap":

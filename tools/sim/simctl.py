@@ -6,7 +6,7 @@
         sim.control({"op": "get", "addr": 1, "reg": "SV"})  # -> {"ok": True, "raw": 1000, ...}
     # leaving the block stops it by pid
 
-As a pytest fixture: `sim = simctl.fixture(["fdc100:3"], baud=9600, fmt="8E1")` at module level.
+The tests' pytest fixture of it is tests/sim/conftest.py's sim_fixture().
 """
 from __future__ import annotations
 
@@ -184,13 +184,3 @@ class Simulator:
                 raise TimeoutError("condition not reached")
             time.sleep(interval)
 
-
-def fixture(devices, scope: str = "module", **kw):
-    """A pytest fixture that yields a started Simulator and stops it afterwards."""
-    import pytest  # only needed by callers that use pytest
-
-    @pytest.fixture(scope=scope)
-    def _sim():
-        with Simulator(devices, **kw) as sim:
-            yield sim
-    return _sim

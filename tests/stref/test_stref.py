@@ -5,7 +5,7 @@ import sys
 import tempfile
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-STREF = os.path.join(HERE, "stref.py")
+STREF = os.path.join(os.path.dirname(os.path.dirname(HERE)), "tools", "stref", "stref.py")
 HEADER = """#define MBFB_E_TIMEOUT       1  /* no reply after all retries */
 #define MBFB_E_BAUD         14  /* baud rate the serial driver cannot set exactly
                                    (second line) */

@@ -20,7 +20,8 @@ import tempfile
 import pytest
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, HERE)
+MAPS = os.path.join(os.path.dirname(os.path.dirname(HERE)), "maps")  # the product: maps/
+sys.path.insert(0, MAPS)
 import mbmap  # noqa: E402
 
 PY = sys.executable
@@ -238,5 +239,5 @@ def test_check_st_ignores_commented_constants():
 
 def test_readme_is_generated_from_the_maps():
     import mkdoc
-    with open(os.path.join(HERE, "README.md"), encoding="utf-8") as fh:
+    with open(os.path.join(MAPS, "README.md"), encoding="utf-8") as fh:
         assert fh.read() == mkdoc.render(), "run python3 maps/mkdoc.py"

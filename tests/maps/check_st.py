@@ -2,7 +2,7 @@
 """Checks the ST blocks' named constants against the register maps (rule: maps/README.md,
 "Constants in ST").
 
-    python3 maps/check_st.py [FILE_OR_DIR ...]     # default: st_src/ of this checkout
+    python3 tests/maps/check_st.py [FILE_OR_DIR ...]   # default: st_src/ of this checkout
 
 Every `VAR CONSTANT` / `VAR_GLOBAL CONSTANT` entry whose name starts with MVD_, MTS_ or FDC_
 must equal what its device's map says. Exit 0 when all agree; 1 on any difference, on a
@@ -18,7 +18,9 @@ import re
 import sys
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-sys.path.insert(0, HERE)
+ROOT = os.path.dirname(os.path.dirname(HERE))  # tests/maps -> the checkout
+MAPS = os.path.join(ROOT, "maps")
+sys.path.insert(0, MAPS)
 import mbmap  # noqa: E402
 
 PREFIXES = {"MVD": "mvd94", "MTS": "mts9", "FDC": "fdc100"}
@@ -91,7 +93,7 @@ def expected(m, rest: str):
     raise KeyError("not a register (REG_), table code, FCnn_MAX_WORDS, OFFSET_ or DEC_ name")
 
 
-def check(paths, maps_dir=HERE, out=sys.stdout) -> int:
+def check(paths, maps_dir=MAPS, out=sys.stdout) -> int:
     found = bad = 0
     for path, line, name, text in constants(paths):
         prefix, _, rest = name.partition("_")
@@ -129,10 +131,10 @@ def check(paths, maps_dir=HERE, out=sys.stdout) -> int:
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("paths", nargs="*", help="ST files or folders (default: st_src/)")
-    p.add_argument("--maps", default=HERE, help="folder of the map files (default: maps/)")
+    p.add_argument("--maps", default=MAPS, help="folder of the map files (default: maps/)")
     args = p.parse_args(argv)
     paths = []
-    for item in args.paths or [os.path.join(os.path.dirname(HERE), "st_src")]:
+    for item in args.paths or [os.path.join(ROOT, "st_src")]:
         if os.path.isdir(item):
             paths += sorted(glob.glob(os.path.join(item, "*.st")))
         elif os.path.isfile(item):
