@@ -3,6 +3,7 @@ aliases, exceptions with their EROR codes, commands, locks, scaling, power cycle
 import pytest
 
 from conftest import crc, frames, instrument, mbpoll, mbpoll_values, sim_fixture
+import simctl  # noqa: E402  (tools/sim, on the path conftest sets)
 
 # Linux ptys cannot carry parity, so the line runs 8N1 and the FDC's PARI follows it (2 = None).
 sim = sim_fixture(["fdc100:1", "fdc100:3:SP1=150.0"], fmt="8N1", time_scale=20)
