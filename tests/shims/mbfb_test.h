@@ -43,7 +43,7 @@ int t_hex(const char *hex, uint8_t *out);
 /** Print the result and return the process exit code. */
 int t_done(const char *name);
 
-/** DEVICES.md 3.10: FDC Example 1, FC16 of 52 words with its CRC (113 bytes). */
+/** The FDC manual's Example 1, FC16 of 52 words with its CRC (113 bytes). */
 extern const char *const fdc_ex1;
 
 /* ---- scripted peer ----------------------------------------------------------- */

@@ -1,6 +1,6 @@
 /*
  * test_frame.c - CRC-16, LRC and request frames against every worked frame of the
- * manuals (../shared/spec/DEVICES.md sections 1.9, 2.8, 3.12 and 4), reply
+ * manuals (as the maps keep them: maps/<device>.json, "frames"), reply
  * validation, argument checks, timing values, error texts. No I/O.
  */
 #include <string.h>
@@ -8,7 +8,7 @@
 #include "mbfb_internal.h"
 #include "mbfb_test.h"
 
-/* Every RTU frame with its CRC, as printed (or derived) in DEVICES.md. */
+/* Every RTU frame with its CRC, as printed (or derived) in the manuals. */
 static const char *const rtu_frames[] = {
     /* 1.9 SetPro MV-D94 / VD, printed in both manuals */
     "01 03 00 00 00 01 84 0A", "01 03 02 03 E8 B8 FA", "01 04 10 00 00 01 35 0A",
@@ -144,7 +144,7 @@ static void test_validation(void)
              MBFB_E_BADREPLY);
     CHECK_EQ(check_reply_hex("01 10 00 00 00 02 04 00 0A 01 02", "01 10 00 00 00"),
              MBFB_E_BADREPLY);
-    /* exceptions (DEVICES.md 1.9, 3.12) */
+    /* exceptions (SetPro and FDC manuals) */
     CHECK_EQ(check_reply_hex("01 03 00 00 00 01", "01 83 02"), 130);
     CHECK_EQ(check_reply_hex("01 06 00 48 68 25", "01 86 03"), 131);
     CHECK_EQ(check_reply_hex("01 03 00 00 00 01", "01 86 03"), MBFB_E_BADREPLY);

@@ -314,7 +314,7 @@ static int wait_line_quiet(int dev)
     return 0;
 }
 
-/* Issue 10: the achieved refresh rate and the line's use, per device. Every bound holds
+/* The achieved refresh rate and the line's use, per device. Every bound holds
  * however slow this machine is (a slow machine only makes the waits longer):
  *  - a refresh starts no earlier than the period after the start of the one before (the
  *    worker's schedule), so refresh_us >= period;

@@ -1,4 +1,4 @@
-"""FDC Series 100 (BTC-9100) model against the manual (DEVICES.md section 3): examples 1-7,
+"""FDC Series 100 (BTC-9100) model against the FDC manual: examples 1-7,
 aliases, exceptions with their EROR codes, commands, locks, scaling, power cycle."""
 import pytest
 
@@ -30,7 +30,7 @@ def eror(s, addr=1):
 
 def test_example1_download_defaults(sim, raw_factory):
     req = "01 10 00 00 00 34 68 " + " ".join(w[:2] + " " + w[2:] for w in EX1_WORDS.split())
-    assert crc(req).endswith("8E C3")                  # DEVICES.md 3.10
+    assert crc(req).endswith("8E C3")                  # the manual's Example 1
     assert hexu(raw_factory(sim.port).xfer(crc(req))) == "01 10 00 00 00 34 C1 DE"
     assert sim.ctl("get", addr=1, reg="SP1")["eng"] == 25.0
     assert sim.ctl("get", addr=1, reg="REHI")["eng"] == 100.0

@@ -1,4 +1,4 @@
-"""MT-S9 counter/meter against the manual (DEVICES.md section 2): the three framings, 32-bit
+"""MT-S9 counter/meter against the MT-S9 manual: the three framings, 32-bit
 values low word first, counting, Over-Flow, Decimal Set and the Author gate."""
 import minimalmodbus
 import pytest

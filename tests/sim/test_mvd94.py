@@ -1,4 +1,4 @@
-"""SetPro MV-D94 / VD model against the manual (DEVICES.md section 1), with mbpoll,
+"""SetPro MV-D94 / VD model against the SetPro manual, with mbpoll,
 minimalmodbus and raw bytes as masters."""
 import json
 import os
@@ -60,7 +60,7 @@ def test_vd_same_map_and_startup_values(sim):
 
 
 def test_negative_values_twos_complement(sim):
-    """SPOF = -10 travels as FF F6 (DEVICES.md 1.6 derived vector 01 06 00 01 FF F6 19 BC)."""
+    """SPOF = -10 travels as FF F6 (derived frame 01 06 00 01 FF F6 19 BC)."""
     inst = instrument(sim.port, 1)
     inst.write_register(1, -10, signed=True, functioncode=6)
     assert frames(sim)[0] == ("rx", "01 06 00 01 FF F6 19 BC")
@@ -110,7 +110,7 @@ def test_silence_bad_crc_foreign_and_broadcast(sim, raw_factory):
     assert raw.xfer("01 03 00 00 00 01 84 0B") == b""            # bad CRC
     assert raw.xfer(crc("09 03 00 00 00 01")) == b""             # nobody at 9
     assert raw.xfer(crc("00 03 00 00 00 01")) == b""             # broadcast read: ignored
-    # broadcast write (DEVICES.md 1.9 vector): applied by all, answered by none
+    # broadcast write (the manual's worked frame): applied by all, answered by none
     assert raw.xfer("00 06 00 00 01 F4 88 0C") == b""
     for addr in (1, 2, 7):
         assert sim.ctl("get", addr=addr, reg="SV")["raw"] == 500
