@@ -264,6 +264,43 @@ static void late_echo_heard(void)
     teardown();
 }
 
+/* A device late by 600 ms and deaf meanwhile: its reads fail until it is in back-off
+ * (three failed requests; their resync reads take other counts, so no shape runs out),
+ * and its requests are refused OFFLINE until the next probe. Once its late reply is on the
+ * line, the next request for it reads the port first, hears the reply, and the back-off
+ * ends: that request goes on the wire and gets its own answer, before the probe was due
+ * (it used to be refused OFFLINE until the resync shapes were MBFB_LATE_MAX_MS old). */
+static void deaf_600(peer_t *p, int n, const uint8_t *f, int len, peer_reply_t *r)
+{
+    peer_answer(p, n, f, len, r);
+    if (n == 0) {
+        r->delay_ms = 600;
+        r->pace_us = 1;
+        r->deaf = 1;
+    }
+}
+
+static void late_heard_ends_backoff(void)
+{
+    uint16_t v[1] = {0};
+    int dev = t_serial_dev(&P, deaf_600, framing, 9600, 50, 1), rc = 0;
+    for (int64_t end = t_now_us() + 2000000; rc != -MBFB_E_OFFLINE && t_now_us() < end;)
+        rc = t_run(dev, 3, 0, 1, NULL, v, 1);
+    CHECK_EQ(rc, -MBFB_E_OFFLINE);      /* in back-off after failed requests */
+    CHECK_EQ(t_diag(dev).offline, 1);
+    for (int64_t end = t_now_us() + 5000000; !late_started() && t_now_us() < end;)
+        t_sleep_ms(1);
+    CHECK(late_started());
+    CHECK_EQ(peer_count(&P), 1);        /* the deaf device heard only the first */
+    t_sleep_ms(50);                     /* the late reply is on the line */
+    CHECK_EQ(t_run(dev, 3, 0, 1, NULL, v, 1), 1);
+    CHECK_EQ(v[0], 0x1000);
+    CHECK_EQ(peer_count(&P), 2);        /* on the wire at once: its own resync read */
+    CHECK_EQ(t_diag(dev).offline, 0);
+    CHECK_EQ(t_diag(dev).crc_errors + t_diag(dev).bad_replies, 0);
+    teardown();
+}
+
 /* A valid-looking answer to the same question with a wrong value, in this framing. */
 static int wrong_answer(uint8_t *out)
 {
@@ -395,6 +432,7 @@ int main(void)
         {late_heard_frees_its_shape, "a heard late reply frees its shape"},
         {late_heard_in_resync_wait, "a late reply heard in a resync read's wait"},
         {late_echo_heard, "a write's late echo heard"},
+        {late_heard_ends_backoff, "a heard late reply ends back-off"},
         {late_trickling, "late reply still trickling"},
         {babble_short, "another talker"},
         {babble_forever, "babbling line"},
