@@ -14,7 +14,7 @@
  *                              snapshot; for callgrind (MODE=plan bench/callgrind.sh)
  *   mbfb_bench fault N         the cost of a fault: N reads of 4 registers at 115200,
  *                              every 10th unanswered; time and attempts per clean and
- *                              per faulted read (response timeout, settle, resync read,
+ *                              per faulted read (response timeout, resync read,
  *                              the read again)
  */
 #include <stdlib.h>
@@ -198,7 +198,7 @@ static void fault_cost(int n)
     mbfb_bus_diag(dev, &bd);
     printf("115200 8N1, FC03 x 4 registers, derived timeout, every 10th unanswered:\n");
     printf("  clean read   %6.2f ms (%ld)\n", clean ? t_clean / 1000.0 / clean : 0.0, clean);
-    printf("  faulted read %6.2f ms (%ld): timeout + settle + resync read + read again\n",
+    printf("  faulted read %6.2f ms (%ld): timeout + resync read + read again\n",
            fault ? t_fault / 1000.0 / fault : 0.0, fault);
     printf("  attempts %u for %ld reads; resync reads %u; timeouts %u\n", bd.transactions,
            (long)n, d.resyncs, d.timeouts);

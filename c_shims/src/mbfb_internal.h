@@ -219,12 +219,13 @@ typedef struct mbfb_slot {
 } mbfb_slot_t;
 
 /* ---- devices ------------------------------------------------------------- */
-/** Reply shape of a failed attempt whose reply may still come (README "Late replies"). */
+/** Reply shape of a failed attempt whose reply may still come (README "Late replies"):
+ *  what a late reply to it would look like. A read's reply is told by (fc, byte count); a
+ *  write's echo by fc and its first two words (address, and value (FC06) or count (FC16)). */
 typedef struct mbfb_shape {
     int fc;                  /* function code of the request                      */
-    int bytes;               /* byte count of a read reply; for writes the echoed
-                                address/value or count (a write's reply is the same
-                                length for every write of that fc)                 */
+    int bytes;               /* reads: the reply's byte count (2 x registers)     */
+    uint16_t echo[2];        /* writes: the echo's address and value / count      */
     int64_t t_us;            /* when that attempt was sent                         */
 } mbfb_shape_t;
 
@@ -243,8 +244,8 @@ typedef struct mbfb_dev {
     int64_t next_probe_us;
     /* resynchronisation: worker only */
     int in_step;             /* 1: no reply of an earlier request can still come  */
-    int n_out;               /* outstanding shapes                                */
-    mbfb_shape_t out[MBFB_OUTSTANDING_MAX];
+    int n_outstanding;       /* reply shapes of failed attempts that may still come */
+    mbfb_shape_t outstanding[MBFB_OUTSTANDING_MAX];
     int n_known;             /* ranges that read well, most recent first          */
     mbfb_range_t known[MBFB_KNOWN_READS];
     /* refreshes: worker only */
@@ -311,9 +312,11 @@ typedef struct mbfb_bus {
     int64_t quiet_from_us;   /* the line is silent from this time on              */
     int64_t reopen_us;       /* worker: plans try to open the port again from then */
     int timeout_us;          /* response timeout of the current attempt           */
-    int settle_us;           /* silence owed before the next attempt: the response
-                                timeout of a failed attempt (its late reply may still
-                                come), else 0                                      */
+    int settle_us;           /* silence owed before the next attempt to another slave:
+                                the response timeout of a failed attempt (its late reply
+                                may still come and would fail that slave's request);
+                                a resync read to the failed slave itself owes none     */
+    int settle_slave;        /* the slave whose attempt failed (settle_us)          */
     uint32_t stray_bytes;    /* atomic: bytes discarded outside replies (diag)     */
     uint8_t heard[MBFB_HEARD_MAX]; /* worker: the last bytes heard during the silence
                                 wait before this attempt (mbfb_serial_quiet), for late

@@ -7,15 +7,16 @@
  * or a post (sem_clockwait on CLOCK_MONOTONIC).
  *
  * One request (a posted one or a plan read) = up to 1 + retries failed attempts:
- *   wait until the line is silent (the gap, or a whole response timeout after a failed
- *   attempt: the settle), send, receive, validate.
+ *   wait until the line is silent (the gap; a whole response timeout, the settle, after a
+ *   failed attempt to another slave), send, receive, validate.
  * In step (README "Late replies"): RTU has no transaction id. After a failed attempt
  * the device is out of step and the reply shape of that attempt is outstanding. While
  * out of step only resync reads go to the device: a read whose reply shape differs from
  * every outstanding one. A good reply to it brings the device back in step (it serves
  * requests in order: nothing older can follow) and clears the outstanding set. A late
- * reply heard in the silence before a request retires its shape (hear_late_replies), and
- * a read whose shape is free is its own resync read: its answer is the request's.
+ * reply heard in the silence before a request, or in a resync read's wait, retires its
+ * shape (retire_heard), and a read whose shape is free is its own resync read: its
+ * answer is the request's. A resync read goes right after the failed attempt: no settle.
  * Confirmed writes (README "Confirmed writes"): an echo while in step is DONE; an
  * exception is a definite "not applied"; any other failure leaves the outcome unknown
  * until a read-back (FC03 of the written registers, in step) shows it: equal -> DONE;
@@ -89,45 +90,71 @@ static void busy_add(mbfb_bus_t *bus, int64_t now, int64_t us)
 
 static void hear_late_replies(mbfb_bus_t *bus);
 
+/* Does a whole, checked reply frame f (slave + PDU, len bytes) fit outstanding shape sh?
+ * A read's reply by its byte count, a write's echo by its address and value / count, an
+ * exception by its function alone (any request of that function may end in one). */
+static int reply_fits_shape(const mbfb_shape_t *sh, const uint8_t *f, int len)
+{
+    if (sh->fc != (f[1] & 0x7F))
+        return 0;
+    if (f[1] & 0x80)
+        return 1;
+    if (sh->fc == 3 || sh->fc == 4)
+        return len >= 3 && sh->bytes == f[2];
+    return len >= 6 && sh->echo[0] == (uint16_t)(f[2] << 8 | f[3]) &&
+           sh->echo[1] == (uint16_t)(f[4] << 8 | f[5]);
+}
+
 /* A whole, checked reply frame f (slave + PDU) heard outside its request: when a device of
  * this bus has its shape outstanding, retire that shape (the device gives one reply per
- * request, so that one can no longer come) and return 1; else 0. An exception retires an
- * outstanding shape of its function. */
+ * request, so that one can no longer come) and return 1; else 0. A device heard answering
+ * is busy or slow, not gone: its back-off ends (its failures count from 0 again). */
 static int retire_heard(mbfb_bus_t *bus, const uint8_t *f, int len)
 {
-    int fc = f[1] & 0x7F, exc = (f[1] & 0x80) != 0;
-
     for (int d = 0; d < MBFB_MAX_DEVICES; d++) {
         mbfb_dev_t *dev = __atomic_load_n(&mbfb_devs[d], __ATOMIC_ACQUIRE);
-        int i;
+        int i, fits = 0;
         if (dev == NULL || dev->bus != bus->index || dev->slave != f[0])
             continue;
-        for (i = 0; i < dev->n_out; i++)
-            if (dev->out[i].fc == fc && (exc || (len >= 3 && dev->out[i].bytes == f[2])))
-                break;
-        if (i == dev->n_out)
+        for (int k = 0; k < dev->n_outstanding; k++)
+            fits += reply_fits_shape(&dev->outstanding[k], f, len);
+        /* an exception tells only the function: which of two outstanding requests of it
+         * was answered is unknown, so it retires a shape only when it is the only one */
+        if (fits == 0 || (fits > 1 && (f[1] & 0x80)))
             return 0;
-        memmove(&dev->out[i], &dev->out[i + 1],
-                (size_t)(dev->n_out - i - 1) * sizeof dev->out[0]);
-        dev->n_out--;
+        for (i = 0; i < dev->n_outstanding; i++)
+            if (reply_fits_shape(&dev->outstanding[i], f, len))
+                break;
+        memmove(&dev->outstanding[i], &dev->outstanding[i + 1],
+                (size_t)(dev->n_outstanding - i - 1) * sizeof dev->outstanding[0]);
+        dev->n_outstanding--;
+        if (dev->fails > 0) {
+            dev->fails = 0;
+            dev->probe_ms = 0;
+            MBFB_DIAG_SET(dev, offline, 0u);
+        }
         return 1;
     }
     return 0;
 }
 
-/* Wait for a silent line before an attempt: the gap, or the settle owed after a
- * failed attempt; a late reply heard meanwhile retires its outstanding shape.
- * 0 or -PORTLOST. */
-static int wait_quiet(mbfb_bus_t *bus)
+/* Wait for a silent line before an attempt to `slave`: the gap, or, after a failed attempt
+ * to another slave, the settle (a response timeout of silence: that slave's late reply
+ * would fail this slave's request). The failed slave's own resync read owes no settle: its
+ * reply shape differs from every outstanding one, and a late reply that comes in its wait
+ * is retired there (send_and_check). A late reply heard meanwhile retires its outstanding
+ * shape. 0 or -PORTLOST. */
+static int wait_quiet(mbfb_bus_t *bus, int slave)
 {
     int silence = bus->timing.gap_us, n;
 
-    if (bus->settle_us > silence)
-        silence = bus->settle_us;
+    if (bus->settle_us > 0 && slave != bus->settle_slave) {
+        silence = bus->settle_us > silence ? bus->settle_us : silence;
+        bus->settle_us = 0; /* waited for here; the failed slave's own attempts keep it */
+    }
     n = bus->be->quiet(bus, silence, silence + MBFB_QUIET_LIMIT_T * bus->timeout_us);
     if (n < 0)
         return n;
-    bus->settle_us = 0;
     MBFB_STRAY_ADD(bus, n);
     if (bus->be->needs_resync && bus->n_heard > 0)
         hear_late_replies(bus);
@@ -138,9 +165,10 @@ static int wait_quiet(mbfb_bus_t *bus)
 
 /* One exchange on the wire: fc 3/4 (values read into out), 6/16 (vals written).
  * Returns MBFB_OK, a positive MBFB_E_* (failure or 128 + exception), or
- * -MBFB_E_PORTLOST. A failure owes the line a settle and, on TCP, reconnects. */
-static int attempt(mbfb_bus_t *bus, mbfb_dev_t *dev, int fc, int addr, int count,
-                   const uint16_t *vals, uint16_t *out)
+ * -MBFB_E_PORTLOST. A failure owes the line a settle before an attempt to another slave
+ * (wait_quiet) and, on TCP, reconnects. */
+static int send_and_check(mbfb_bus_t *bus, mbfb_dev_t *dev, int fc, int addr, int count,
+                          const uint16_t *vals, uint16_t *out)
 {
     uint8_t req[MBFB_FRAME_MAX], rsp[MBFB_FRAME_MAX];
     int len = mbfb_build_request(req, dev->slave, fc, addr, count, vals), rc, err;
@@ -150,7 +178,7 @@ static int attempt(mbfb_bus_t *bus, mbfb_dev_t *dev, int fc, int addr, int count
                           ? bus->cfg.response_timeout_ms * 1000
                           : mbfb_response_timeout_us(&bus->timing, bus->cfg.framing, len,
                                                      mbfb_reply_len(req));
-    if (wait_quiet(bus) < 0)
+    if (wait_quiet(bus, dev->slave) < 0)
         return -MBFB_E_PORTLOST;
     t0 = mbfb_now_us();
     if (bus->be->send(bus, req, len) < 0)
@@ -165,8 +193,9 @@ static int attempt(mbfb_bus_t *bus, mbfb_dev_t *dev, int fc, int addr, int count
     deadline = mbfb_now_us() + bus->timeout_us;
     rc = bus->be->recv(bus, req, rsp, (int)sizeof rsp, bus->timeout_us);
     /* a late reply of an outstanding shape came first (a resync read's shape differs from
-     * every outstanding one): its shape is retired and the wait goes on for this request's
-     * own answer, which the device sends after it */
+     * every outstanding one; another slave's reply never passes the check): its shape is
+     * retired and the wait goes on for this request's own answer, which the device sends
+     * after it */
     while (rc > 0 && bus->be->needs_resync &&
            mbfb_check_reply(req, rsp, rc) == MBFB_E_BADREPLY && retire_heard(bus, rsp, rc)) {
         int64_t left = deadline - mbfb_now_us();
@@ -190,7 +219,8 @@ static int attempt(mbfb_bus_t *bus, mbfb_dev_t *dev, int fc, int addr, int count
     count_failure(dev, err);
     if (err >= MBFB_E_EXCEPTION_BASE)
         return err;
-    bus->settle_us = bus->timeout_us; /* its reply may still come: let it pass */
+    bus->settle_us = bus->timeout_us; /* its reply may still come: let it pass before */
+    bus->settle_slave = dev->slave;   /* another slave's request (wait_quiet)          */
     if (!bus->be->needs_resync) {
         bus->be->reconnect(bus);
         if (bus->fd < 0)
@@ -205,42 +235,60 @@ static int attempt(mbfb_bus_t *bus, mbfb_dev_t *dev, int fc, int addr, int count
 static void expire_shapes(mbfb_dev_t *dev, int64_t now)
 {
     int k = 0;
-    for (int i = 0; i < dev->n_out; i++)
-        if (now - dev->out[i].t_us < (int64_t)MBFB_LATE_MAX_MS * 1000)
-            dev->out[k++] = dev->out[i];
-    dev->n_out = k;
+    for (int i = 0; i < dev->n_outstanding; i++)
+        if (now - dev->outstanding[i].t_us < (int64_t)MBFB_LATE_MAX_MS * 1000)
+            dev->outstanding[k++] = dev->outstanding[i];
+    dev->n_outstanding = k;
 }
 
 /* A read of `count` registers with fc: is its reply shape outstanding? */
 static int shape_taken(const mbfb_dev_t *dev, int fc, int count)
 {
-    for (int i = 0; i < dev->n_out; i++)
-        if (dev->out[i].fc == fc && dev->out[i].bytes == 2 * count)
+    for (int i = 0; i < dev->n_outstanding; i++)
+        if (dev->outstanding[i].fc == fc && dev->outstanding[i].bytes == 2 * count)
             return 1;
     return 0;
 }
 
-/* After a failed attempt: out of step (serial lines); a read's reply shape becomes
- * outstanding. Only reads are sent out of step, so a write's echo needs no entry. */
-static void out_of_step(mbfb_bus_t *bus, mbfb_dev_t *dev, int fc, int count, int64_t t)
+/* After a failed attempt: out of step (serial lines); the attempt's reply shape becomes
+ * outstanding: a read's (fc, byte count), a write's echo (fc, address, value / count).
+ * Only reads are sent out of step, so a write's echo is never taken for an answer; its
+ * shape is kept so that the echo, when it comes, is known for what it is and retired
+ * (retire_heard) instead of failing the resync read in whose wait it arrives. */
+static void out_of_step(mbfb_bus_t *bus, mbfb_dev_t *dev, int fc, int addr, int count,
+                        const uint16_t *vals, int64_t t)
 {
+    mbfb_shape_t sh;
     if (!bus->be->needs_resync)
         return; /* TCP: the new connection is in step */
     dev->in_step = 0;
-    if ((fc == 3 || fc == 4) && !shape_taken(dev, fc, count) &&
-        dev->n_out < MBFB_OUTSTANDING_MAX) {
-        dev->out[dev->n_out].fc = fc;
-        dev->out[dev->n_out].bytes = 2 * count;
-        dev->out[dev->n_out].t_us = t;
-        dev->n_out++;
+    memset(&sh, 0, sizeof sh);
+    sh.fc = fc;
+    sh.t_us = t;
+    if (fc == 3 || fc == 4) {
+        if (shape_taken(dev, fc, count))
+            return;
+        sh.bytes = 2 * count;
+    } else {
+        sh.echo[0] = (uint16_t)addr;
+        sh.echo[1] = fc == 6 ? vals[0] : (uint16_t)count;
+        for (int i = 0; i < dev->n_outstanding; i++)
+            if (dev->outstanding[i].fc == fc && dev->outstanding[i].echo[0] == sh.echo[0] &&
+                dev->outstanding[i].echo[1] == sh.echo[1])
+                return;
     }
+    if (dev->n_outstanding < MBFB_OUTSTANDING_MAX)
+        dev->outstanding[dev->n_outstanding++] = sh;
 }
 
-/* A good reply to a resync read: in step, nothing can be late any more. */
-static void in_step(mbfb_dev_t *dev)
+/* A good reply to a resync read: in step, nothing can be late any more (and no other
+ * slave need wait for a late reply of it: the settle it owed is void). */
+static void in_step(mbfb_bus_t *bus, mbfb_dev_t *dev)
 {
     dev->in_step = 1;
-    dev->n_out = 0;
+    dev->n_outstanding = 0;
+    if (bus->settle_slave == dev->slave)
+        bus->settle_us = 0;
 }
 
 /* Late replies heard in the silence before a request (bus->heard): a whole, checked
@@ -279,14 +327,16 @@ static void remember_read(mbfb_dev_t *dev, int fc, int addr, int count)
 /* Is a reply with exception function fc|0x80 possible from an outstanding request? */
 static int exception_taken(const mbfb_dev_t *dev, int fc)
 {
-    for (int i = 0; i < dev->n_out; i++)
-        if (dev->out[i].fc == fc)
+    for (int i = 0; i < dev->n_outstanding; i++)
+        if (dev->outstanding[i].fc == fc)
             return 1;
     return 0;
 }
 
-/* Consider a readable window for the shortest free resync read. */
-static void consider(const mbfb_dev_t *dev, int fc, int addr, int count, mbfb_range_t *best)
+/* The shortest read of fc inside the readable window (addr, count) whose reply shape is
+ * free, into *best if shorter than what it holds. */
+static void shortest_free_in_window(const mbfb_dev_t *dev, int fc, int addr, int count,
+                                    mbfb_range_t *best)
 {
     for (int k = 1; k <= count && (best->count == 0 || k < best->count); k++)
         if (!shape_taken(dev, fc, k)) {
@@ -297,31 +347,47 @@ static void consider(const mbfb_dev_t *dev, int fc, int addr, int count, mbfb_ra
         }
 }
 
-/* Choose the resync read for a device: the shortest read, inside a window known to be
- * readable (the request itself if a read, the written range of a write, the device's
- * plan items, ranges that read well), whose reply shape is not outstanding. When every
- * such shape is taken: one register with the other read function (3 <-> 4) at the
- * request's address, if no request of that function is outstanding: then any answer,
- * data or exception, can only be the answer to it. With `readback` (a write of unknown
- * outcome) the written range itself is preferred: its reply is the read-back too.
- * Returns 1 with *r, or 0 when no shape is usable (or the outstanding set is full). */
+/* The shortest read of fc from addr on, of any count, whose reply shape is free (not known
+ * to be readable: the device may answer an exception), into *best if shorter. */
+static void shortest_free_from(const mbfb_dev_t *dev, int fc, int addr, mbfb_range_t *best)
+{
+    for (int k = 1; k <= MBFB_MAX_READ && (best->count == 0 || k < best->count); k++)
+        if (!shape_taken(dev, fc, k)) {
+            best->fc = fc;
+            best->addr = addr + k > MBFB_ADDR_SPACE ? MBFB_ADDR_SPACE - k : addr;
+            best->count = k;
+            return;
+        }
+}
+
+/* Choose the resync read for a device, the first of:
+ *  1. the request itself if a read, or the written range of a write of unknown outcome
+ *     (`readback`), when its shape is free: its answer is the data or the read-back too;
+ *  2. the shortest read inside a window known to be readable (the request's window, the
+ *     written range, the device's plan items, ranges that read well) whose shape is free;
+ *  3. a read with a function none of whose requests is outstanding (3 <-> 4): any answer,
+ *     data or exception, can only be the answer to it (one register at the request's
+ *     address: the shortest);
+ *  4. the shortest read of any count from the request's address, the request's function
+ *     first, whose shape is free: a data reply proves it, an exception only as in 3.
+ * So a read is found while fewer than MBFB_OUTSTANDING_MAX shapes are outstanding: a
+ * window's shapes running out never refuses a request. Returns 1 with *r, or 0 when the
+ * outstanding set is full. */
 static int pick_resync(mbfb_bus_t *bus, int devidx, int fc, int addr, int count,
                        int readback, mbfb_range_t *r)
 {
     mbfb_dev_t *dev = mbfb_devs[devidx];
-    int write = fc == 6 || fc == 16, n, rfc = write ? 3 : fc;
+    int write = fc == 6 || fc == 16, n, read_fc = write ? 3 : fc, other_fc = 7 - read_fc;
 
     expire_shapes(dev, mbfb_now_us());
-    if (dev->n_out >= MBFB_OUTSTANDING_MAX)
+    if (dev->n_outstanding >= MBFB_OUTSTANDING_MAX)
         return 0;
-    if ((readback || !write) && !shape_taken(dev, rfc, count)) {
-        /* the written range (its reply is the read-back too), or the read itself (its
-         * answer is the request's: no second read of the same registers) */
-        r->fc = rfc, r->addr = addr, r->count = count;
+    if ((readback || !write) && !shape_taken(dev, read_fc, count)) {
+        r->fc = read_fc, r->addr = addr, r->count = count;
         return 1;
     }
     r->count = 0;
-    consider(dev, rfc, addr, count, r);
+    shortest_free_in_window(dev, read_fc, addr, count, r);
     n = __atomic_load_n(&bus->n_plans, __ATOMIC_ACQUIRE);
     for (int i = 0; i < n; i++) {
         mbfb_plan_t *p = __atomic_load_n(&bus->plans[i], __ATOMIC_ACQUIRE);
@@ -332,21 +398,23 @@ static int pick_resync(mbfb_bus_t *bus, int devidx, int fc, int addr, int count,
             continue;
         mbfb_plan_read_cfg(p, items, &ni, &per, &slow, &cs);
         for (int k = 0; k < ni; k++)
-            consider(dev, items[k].fc, items[k].addr, items[k].count, r);
+            shortest_free_in_window(dev, items[k].fc, items[k].addr, items[k].count, r);
     }
     for (int i = 0; i < dev->n_known; i++)
-        consider(dev, dev->known[i].fc, dev->known[i].addr, dev->known[i].count, r);
-    if (r->count == 0 && !exception_taken(dev, 7 - rfc)) {
-        r->fc = 7 - rfc; /* 3 <-> 4 */
-        r->addr = addr;
-        r->count = 1;
+        shortest_free_in_window(dev, dev->known[i].fc, dev->known[i].addr,
+                                dev->known[i].count, r);
+    if (r->count == 0 && !exception_taken(dev, other_fc))
+        shortest_free_from(dev, other_fc, addr, r); /* one register */
+    if (r->count == 0) {
+        shortest_free_from(dev, read_fc, addr, r);
+        shortest_free_from(dev, other_fc, addr, r);
     }
     return r->count > 0;
 }
 
 /* ---- one request with its retries, resyncs and read-backs ------------------------ */
 
-typedef struct op {
+typedef struct request {
     int devidx, fc, addr, count, policy;
     const uint16_t *vals;     /* writes */
     uint16_t *out;            /* reads: count registers */
@@ -354,10 +422,10 @@ typedef struct op {
     int answered;             /* out: a valid reply (or exception) came from the device */
     int sent;                 /* out: attempts put on the wire                         */
     int write_sent;           /* out: the write itself went on the wire (maybe applied) */
-} op_t;
+} request_t;
 
 /* Count an attempt beyond the first of this request. */
-static void next_attempt(mbfb_dev_t *dev, op_t *op)
+static void next_attempt(mbfb_dev_t *dev, request_t *op)
 {
     if (op->sent++ > 0)
         MBFB_DIAG_INC(dev, retries);
@@ -365,61 +433,65 @@ static void next_attempt(mbfb_dev_t *dev, op_t *op)
 
 /* Run one request (see the file comment). Returns MBFB_OK, a positive MBFB_E_*, or
  * -MBFB_E_PORTLOST. MBFB_E_OFFLINE: no resync read was possible, nothing was sent. */
-static int run_op(mbfb_bus_t *bus, op_t *op)
+static int run_attempts(mbfb_bus_t *bus, request_t *op)
 {
     mbfb_dev_t *dev = mbfb_devs[op->devidx];
     int write = op->fc == 6 || op->fc == 16;
     int failures = 0, err = MBFB_E_TIMEOUT, unknown = 0, rc;
-    uint16_t rb[MBFB_MAX_READ];
+    uint16_t resync_words[MBFB_MAX_READ];
     mbfb_range_t r;
 
     for (;;) {
         if (failures >= op->budget)
             return unknown ? MBFB_E_UNCONFIRMED : err;
         if (!dev->in_step) { /* only a resync read may go */
-            int merged, own_read, exc_proves;
+            int resync_is_readback, resync_is_request, exception_proves;
             /* listen first: a late reply heard now frees its shape for the choice */
-            if (wait_quiet(bus) < 0)
+            if (wait_quiet(bus, dev->slave) < 0)
                 return -MBFB_E_PORTLOST;
             if (!pick_resync(bus, op->devidx, op->fc, op->addr, op->count, unknown, &r))
                 return unknown ? MBFB_E_UNCONFIRMED : (op->sent ? err : MBFB_E_OFFLINE);
-            merged = unknown && r.fc == 3 && r.addr == op->addr && r.count == op->count;
-            own_read = !write && r.fc == op->fc && r.addr == op->addr && r.count == op->count;
-            exc_proves = !exception_taken(dev, r.fc); /* no earlier exception can come */
+            resync_is_readback =
+                unknown && r.fc == 3 && r.addr == op->addr && r.count == op->count;
+            resync_is_request =
+                !write && r.fc == op->fc && r.addr == op->addr && r.count == op->count;
+            exception_proves = !exception_taken(dev, r.fc); /* no earlier one can come */
             next_attempt(dev, op);
             MBFB_DIAG_INC(dev, resyncs);
-            rc = attempt(bus, dev, r.fc, r.addr, r.count, NULL, rb);
+            rc = send_and_check(bus, dev, r.fc, r.addr, r.count, NULL, resync_words);
             if (rc == -MBFB_E_PORTLOST)
                 return rc;
-            if (rc >= MBFB_E_EXCEPTION_BASE && exc_proves) {
+            if (rc >= MBFB_E_EXCEPTION_BASE && exception_proves) {
                 op->answered = 1;
-                in_step(dev);
-                if (merged)
+                in_step(bus, dev);
+                if (resync_is_readback)
                     return MBFB_E_UNCONFIRMED; /* the read-back is refused */
-                if (own_read)
+                if (resync_is_request)
                     return rc; /* the request's own answer */
                 continue;
             }
             if (rc != MBFB_OK) { /* this exception may be a late one: still out of step */
                 op->answered |= rc >= MBFB_E_EXCEPTION_BASE;
-                out_of_step(bus, dev, r.fc, r.count, mbfb_now_us());
+                out_of_step(bus, dev, r.fc, r.addr, r.count, NULL, mbfb_now_us());
                 failures++;
-                err = rc;
+                /* an exception to a resync read of other registers is not the request's */
+                if (rc < MBFB_E_EXCEPTION_BASE || resync_is_request || resync_is_readback)
+                    err = rc;
                 continue;
             }
             op->answered = 1;
-            in_step(dev);
+            in_step(bus, dev);
             remember_read(dev, r.fc, r.addr, r.count);
-            if (own_read) { /* the resync read was the request: its answer is the data */
+            if (resync_is_request) { /* the resync read was the request: its answer */
                 if (op->out != NULL)
-                    memcpy(op->out, rb, (size_t)op->count * sizeof rb[0]);
+                    memcpy(op->out, resync_words, (size_t)op->count * sizeof op->out[0]);
                 return MBFB_OK;
             }
-            if (!merged)
+            if (!resync_is_readback)
                 continue;
         } else if (unknown) { /* in step: read the written registers back */
             next_attempt(dev, op);
-            rc = attempt(bus, dev, 3, op->addr, op->count, NULL, rb);
+            rc = send_and_check(bus, dev, 3, op->addr, op->count, NULL, resync_words);
             if (rc == -MBFB_E_PORTLOST)
                 return rc;
             if (rc >= MBFB_E_EXCEPTION_BASE) {
@@ -427,15 +499,15 @@ static int run_op(mbfb_bus_t *bus, op_t *op)
                 return MBFB_E_UNCONFIRMED; /* no read-back possible */
             }
             if (rc != MBFB_OK) {
-                out_of_step(bus, dev, 3, op->count, mbfb_now_us());
+                out_of_step(bus, dev, 3, op->addr, op->count, NULL, mbfb_now_us());
                 failures++;
                 err = rc;
                 continue;
             }
             op->answered = 1;
         }
-        if (unknown) { /* rb holds the read-back */
-            if (memcmp(rb, op->vals, (size_t)op->count * sizeof rb[0]) == 0)
+        if (unknown) { /* resync_words holds the read-back */
+            if (memcmp(resync_words, op->vals, (size_t)op->count * sizeof op->vals[0]) == 0)
                 return MBFB_OK; /* applied (once) */
             if (op->policy == MBFB_WRITE_ONCE)
                 return MBFB_E_UNCONFIRMED; /* not applied: never sent twice */
@@ -445,7 +517,7 @@ static int run_op(mbfb_bus_t *bus, op_t *op)
         }
         next_attempt(dev, op);
         op->write_sent |= write;
-        rc = attempt(bus, dev, op->fc, op->addr, op->count, op->vals, op->out);
+        rc = send_and_check(bus, dev, op->fc, op->addr, op->count, op->vals, op->out);
         if (rc == -MBFB_E_PORTLOST)
             return rc;
         if (rc == MBFB_OK || rc >= MBFB_E_EXCEPTION_BASE) {
@@ -454,7 +526,7 @@ static int run_op(mbfb_bus_t *bus, op_t *op)
                 remember_read(dev, op->fc, op->addr, op->count);
             return rc;
         }
-        out_of_step(bus, dev, op->fc, op->count, mbfb_now_us());
+        out_of_step(bus, dev, op->fc, op->addr, op->count, op->vals, mbfb_now_us());
         failures++;
         err = rc;
         unknown = write && dev->slave != 0;
@@ -520,12 +592,18 @@ static void plans_no_port(mbfb_bus_t *bus, int64_t now, int err)
 }
 
 /* Run one request of a device: back-off, port, attempts. Returns its result. */
-static int device_request(mbfb_bus_t *bus, op_t *op)
+static int device_request(mbfb_bus_t *bus, request_t *op)
 {
     mbfb_dev_t *dev = mbfb_devs[op->devidx];
     int offline = dev->probe_ms > 0, rc;
 
-    if (offline && mbfb_now_us() < dev->next_probe_us) { /* back-off: no bus time */
+    /* back-off: no bus time; but a late reply of the device waiting in the port is heard
+     * first (the silence wait reads it), and retiring its shape ends the wait */
+    if (offline && mbfb_now_us() < dev->next_probe_us && bus->fd >= 0 &&
+        bus->be->needs_resync && mbfb_fd_wait_input(bus->fd, 0) == 1)
+        (void)wait_quiet(bus, dev->slave); /* a lost port shows in the next attempt */
+    offline = dev->probe_ms > 0;
+    if (offline && mbfb_now_us() < dev->next_probe_us) {
         set_error(dev, MBFB_E_OFFLINE);
         return MBFB_E_OFFLINE;
     }
@@ -548,7 +626,7 @@ static int device_request(mbfb_bus_t *bus, op_t *op)
     op->answered = 0;
     op->sent = 0;
     op->write_sent = 0;
-    rc = run_op(bus, op);
+    rc = run_attempts(bus, op);
     if (rc == -MBFB_E_PORTLOST) {
         port_lost(bus, dev);
         /* a write that went out may have been applied before the port went: its outcome
@@ -559,10 +637,10 @@ static int device_request(mbfb_bus_t *bus, op_t *op)
     }
     if (op->sent > 0) {
         update_backoff(dev, op->answered);
-    } else if (rc == MBFB_E_OFFLINE) { /* no resync shape usable: wait for the oldest */
-        int64_t t = dev->n_out > 0 ? dev->out[0].t_us : mbfb_now_us();
-        for (int i = 1; i < dev->n_out; i++)
-            t = dev->out[i].t_us < t ? dev->out[i].t_us : t;
+    } else if (rc == MBFB_E_OFFLINE) { /* outstanding set full: wait for the oldest */
+        int64_t t = dev->n_outstanding > 0 ? dev->outstanding[0].t_us : mbfb_now_us();
+        for (int i = 1; i < dev->n_outstanding; i++)
+            t = dev->outstanding[i].t_us < t ? dev->outstanding[i].t_us : t;
         if (dev->probe_ms <= 0)
             dev->probe_ms = MBFB_PROBE_FIRST_MS;
         dev->next_probe_us = t + (int64_t)MBFB_LATE_MAX_MS * 1000;
@@ -575,7 +653,7 @@ static int device_request(mbfb_bus_t *bus, op_t *op)
 /* A posted request. */
 static void run_slot(mbfb_bus_t *bus, mbfb_slot_t *s)
 {
-    op_t op;
+    request_t op;
     int rc;
 
     memset(&op, 0, sizeof op);
@@ -657,7 +735,7 @@ static void run_refresh(mbfb_bus_t *bus, mbfb_plan_t *p)
     p->last_start_us = start;
     memset(words, 0, sizeof words);
     for (int i = 0; i < n; i++) {
-        op_t op;
+        request_t op;
         int rc;
         if ((items[i].tier == MBFB_TIER_SLOW && !slow) ||
             (items[i].tier == MBFB_TIER_FAST && slow)) {
