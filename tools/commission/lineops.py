@@ -245,19 +245,23 @@ def differences(have: dict, want: dict) -> list:
             if n in want["registers"] and have["registers"][n]["raw"] != want["registers"][n]["raw"]]
 
 
+def write_checked(lib, read, dev, addr: int, raw: int):
+    """FC06 of raw to addr, read back with FC03: None when the device holds it, else why not."""
+    rc = lib.write(dev, addr, raw)
+    if rc == 0:
+        rc, w = read(3, addr, 1)
+        if rc == 0 and w[0] != raw & 0xFFFF:
+            return f"read back {w[0]}, not {raw & 0xFFFF}"
+    return None if rc == 0 else lib.strerror(rc)
+
+
 def restore(lib, args, have: dict, want: dict):
     """Write what differs, each read back: (written names, None) or (written, (name, error))."""
     read, f, _, dev = _find(lib, args)
     m, kind, done = ins.maps()[f.kind], f.kind, []
 
     def put(name, raw):
-        r = m.reg(name)
-        rc = lib.write(dev, r.addr, raw)
-        if rc == 0:
-            rc, w = read(3, r.addr, 1)
-            if rc == 0 and w[0] != raw & 0xFFFF:
-                return f"read back {w[0]}, not {raw & 0xFFFF}"
-        return None if rc == 0 else lib.strerror(rc)
+        return write_checked(lib, read, dev, m.reg(name).addr, raw)
 
     rows = differences(have, want)
     prelude = []                        # access first: unlock, or raise the author level
@@ -320,13 +324,7 @@ def download(lib, args, have: dict, want: dict):
     done = []
 
     def put(name, raw):
-        r = m.reg(name)
-        rc = lib.write(dev, r.addr, raw)
-        if rc == 0:
-            rc, w = read(3, r.addr, 1)
-            if rc == 0 and w[0] != raw & 0xFFFF:
-                return f"read back {w[0]}, not {raw & 0xFFFF}"
-        return None if rc == 0 else lib.strerror(rc)
+        return write_checked(lib, read, dev, m.reg(name).addr, raw)
 
     if have["registers"][lock]["raw"] != unlocked:
         words[m.reg(lock).addr - start] = unlocked
