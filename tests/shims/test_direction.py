@@ -55,11 +55,15 @@ pytestmark = pytest.mark.skipif(not os.path.isfile(DOUBLE),
 
 
 def run_master(tmp_path, port, framing, mode, chip=CHIP, refuse=None, active_low=False,
-               before=0, after=0, n=4):
+               before=0, after=0, n=4, double=True):
+    """The master in a child process (under the test double unless double=False): its
+    results and the double's log."""
     line = LINES[framing]
     log = tmp_path / f"{framing}-{mode}.log"
-    env = dict(os.environ, LD_PRELOAD=DOUBLE, LINEDOUBLE_PORT=port, LINEDOUBLE_LOG=str(log),
-               LINEDOUBLE_GPIOCHIP=CHIP)
+    env = dict(os.environ)
+    if double:
+        env.update(LD_PRELOAD=DOUBLE, LINEDOUBLE_PORT=port, LINEDOUBLE_LOG=str(log),
+                   LINEDOUBLE_GPIOCHIP=CHIP)
     if refuse:
         env["LINEDOUBLE_REFUSE"] = refuse
     arg = dict(port=port, baud=BAUD, stop=line["stop"], framing=framing, mode=mode,
@@ -112,14 +116,9 @@ def test_real_pty_refuses_rts_and_kernel_mode(tmp_path):
     that does not exist is refused by the real libgpiod (or its absence)."""
     with Simulator([LINES["rtu"]["device"]]) as sim:
         for mode in ("rts", "kernel", "gpio"):
-            arg = dict(port=sim.port, baud=BAUD, stop=2, framing="rtu", mode=mode,
-                       active_low=False, before=0, after=0, chip="gpiochip-none", line=0,
-                       read=LINES["rtu"]["read"], write=None, n=1)
-            proc = subprocess.run([sys.executable, "-c", MASTER,
-                                   os.path.join(ROOT, "tools", "commission"), json.dumps(arg)],
-                                  capture_output=True, text=True, timeout=60)
-            assert proc.returncode == 0, proc.stderr
-            assert json.loads(proc.stdout)["reads"][0][0] == E_DIRECTION, mode
+            out, _ = run_master(tmp_path, sim.port, "rtu", mode, chip="gpiochip-none", n=1,
+                                double=False)
+            assert out["reads"][0][0] == E_DIRECTION, mode
         frames = sim.log()
     assert frames == []
 
