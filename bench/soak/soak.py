@@ -150,6 +150,9 @@ class Device:
         self.fail_since = None    # time of the first failure of the current streak
         self.offline = False      # simulator outage on (soak's view, see log batches)
         self.backoff = False      # last result: MBFB_E_OFFLINE (the shims' back-off)
+        self.ready_at = 0.0       # the device can answer again from here on (a lower bound:
+                                  # end of its late reply's delay, of an outage, of the port's
+                                  # absence); what recovery takes beyond it is the master's
         self.write_frames = {}    # frame prefix hex -> write record (for the log)
         self.unknown = []         # UNCONFIRMED writes found not applied when they ended
 
@@ -230,13 +233,19 @@ class Soak:
         self.by_addr = {d.addr: d for d in self.devs}
         self.stats = {
             "transactions": 0, "reads": 0, "writes": 0, "good_reads": 0, "failed_reads": 0,
-            "not_sent_offline": 0, "not_sent_noport": 0, "wrong_values": 0, "writes_done": 0, "writes_failed": 0,
+            "not_sent_offline": 0, "not_sent_offline_device_able": 0, "not_sent_noport": 0,
+            "master_share_clamped": 0, "wrong_values": 0, "writes_done": 0, "writes_failed": 0,
             "writes_lost": 0, "writes_failed_applied": 0, "unconfirmed": 0,
             "unconfirmed_applied": 0, "unconfirmed_applied_late": 0,
             "doubled_once": 0, "doubled_idempotent": 0,
             "log_inconsistent": 0, "results": {}}
         self.injected = {k: 0 for k in (*REPLY_FAULTS, *EVENT_FAULTS)}
-        self.recovery = {"fault": [], "outage": [], "reopen_port": [], "power_cycle": []}
+        # fault: from the first failed request of a streak to the next good reply;
+        # fault_master_share: the same from when the device could answer again (Device.ready_at)
+        # master_share: every recovery below (faults, outages, ...) from when the device
+        # could answer again (Device.ready_at): the part of it that is the master's
+        self.recovery = {"fault": [], "outage": [], "reopen_port": [], "power_cycle": [],
+                         "master_share": []}
         self.pending_recovery = []   # (kind, device or None, since)
         self.wrong_examples = []
         self.write_examples = []
@@ -356,6 +365,11 @@ class Soak:
             if kind == "late":
                 lo, hi = self.a.late_min_ms, self.a.late_max_ms
                 spec["delay_ms"] = round(math.exp(self.rng.uniform(math.log(lo), math.log(hi))))
+                # busy (deaf) until its late reply is out: the reply's request is posted
+                # after now, so now + delay is a lower bound of when it can answer again
+                # (in an outage, the reply it delays comes only after the outage)
+                start = dev.outage_end if dev.offline else now
+                dev.ready_at = max(dev.ready_at, start + spec["delay_ms"] / 1000)
             elif kind == "noise":
                 spec["bytes"] = self.rng.randint(1, 6)
                 spec["where"] = self.rng.choice(("before", "after", "both"))
@@ -377,6 +391,7 @@ class Soak:
             self.ctl(op="offline", addr=dev.addr, on=True)
             dev.offline = True
             dev.outage_end = now + self.rng.uniform(self.a.outage_min_s, self.a.outage_max_s)
+            dev.ready_at = max(dev.ready_at, dev.outage_end)
             self.injected[kind] += 1
             return
         if kind == "reopen_port":
@@ -384,8 +399,10 @@ class Soak:
                 return
             self.injected[kind] += 1
             self.reopen_at = now
-            self.background_ctl({"op": "reopen_port",
-                                 "down_ms": self.rng.randint(100, 1000)})
+            down_ms = self.rng.randint(100, 1000)
+            for d in self.devs:
+                d.ready_at = max(d.ready_at, now + down_ms / 1000)
+            self.background_ctl({"op": "reopen_port", "down_ms": down_ms})
             self.pending_recovery.append(("reopen_port", None, now))
 
     # ---- requests ----
@@ -415,6 +432,14 @@ class Soak:
         self.tr("post", dev=dev.addr, fc=req["fc"], addr=req["addr"], count=req["count"],
                 values=req["write"]["values"] if req["write"] else None)
 
+    def master_share(self, dev, since, now):
+        """A recovery's share that is the master's: from when the device could answer."""
+        share = now - max(since, dev.ready_at)
+        self.stats["master_share_clamped"] += share < 0
+        self.recovery["master_share"].append(max(0.0, share))
+        self.tr("recovered", dev=dev.addr, since=round(since - self.t0, 3),
+                ready=round(dev.ready_at - self.t0, 3), share=round(share, 3))
+
     def finish(self, dev, req, now):
         rc, words = self.shims.take(req["h"], req["count"])
         dev.out = None
@@ -427,17 +452,21 @@ class Soak:
             # not on the wire (back-off, or the port is not there): not a transaction; wait
             # a block's period before the next request instead of spinning
             st["not_sent_offline" if result == E_OFFLINE else "not_sent_noport"] += 1
+            if result == E_OFFLINE and now >= dev.ready_at and not dev.offline:
+                st["not_sent_offline_device_able"] += 1   # refused while it could answer
             dev.resume_at = now + 0.05
         else:
             st["transactions"] += 1
         if result == 0:
             if dev.fail_since is not None:
                 self.recovery["fault"].append(now - dev.fail_since)
+                self.master_share(dev, dev.fail_since, now)
                 dev.fail_since = None
             for item in list(self.pending_recovery):
                 kind, pdev, since = item
                 if pdev is None or pdev is dev:
                     self.recovery[kind].append(now - since)
+                    self.master_share(dev, since, now)
                     self.pending_recovery.remove(item)
         elif dev.fail_since is None and result < 128:
             dev.fail_since = req["t"]
@@ -573,6 +602,8 @@ class Soak:
                 self.fetch_log()
             if self.events_done:
                 self.events_done.clear()
+                for d in self.devs:           # the port is back (reopen_port answered)
+                    d.ready_at = max(d.ready_at, now)
                 self.events_busy = 0
                 self.hold_pty()   # the port is back: hold its new pty number
             for dev in self.devs:
@@ -584,6 +615,7 @@ class Soak:
                     self.fetch_log()            # frames so far: heard while offline
                     self.ctl(op="offline", addr=dev.addr, on=False)
                     dev.offline = False
+                    dev.ready_at = max(dev.ready_at, time.monotonic())
                     self.pending_recovery.append(("outage", dev, time.monotonic()))
                 if dev.out is None and now >= dev.resume_at and \
                         self.stats["transactions"] + sum(d.out is not None for d in self.devs) < total:
@@ -706,8 +738,8 @@ def print_report(r):
     p("  faults injected: " + ", ".join(f"{k} {v}" for k, v in r["faults_injected"].items()))
     p("  reply faults applied by the simulator: " +
       ", ".join(f"{k} {v}" for k, v in sorted(r["faults_applied_by_sim"].items())))
-    p(f"  not sent: device in back-off {r['not_sent_offline']}, port not there "
-      f"{r['not_sent_noport']}")
+    p(f"  not sent: device in back-off {r['not_sent_offline']} (of them while the device could "
+      f"answer: {r['not_sent_offline_device_able']}), port not there {r['not_sent_noport']}")
     p(f"  results: " + ", ".join(f"{k}: {v}" for k, v in r["results"].items()))
     p(f"  WRONG VALUES delivered as good:    {r['wrong_values']}  (of {r['good_reads']} good reads)")
     p(f"  writes lost (Done, not applied):   {r['writes_lost']}  (of {r['writes_done']} Done)")
@@ -718,10 +750,13 @@ def print_report(r):
       f"heard by the device only after the master gave up: {r['unconfirmed_applied_late']})")
     p(f"  outages not recovered:             {r['unrecovered']}")
     p(f"  log inconsistencies:               {r['log_inconsistent']}")
+    names = {"master_share": "any of these, from when the device could answer"}
     for k, v in r["recovery"].items():
         if v:
-            p(f"  recovery after {k}: n {v['n']}, median {v['median_s']} s, p99 {v['p99_s']} s,"
-              f" max {v['max_s']} s")
+            p(f"  recovery after {names.get(k, k)}: n {v['n']}, median {v['median_s']} s,"
+              f" p99 {v['p99_s']} s, max {v['max_s']} s")
+    if r.get("master_share_clamped"):
+        p(f"  (of them {r['master_share_clamped']} answered before the soak's bound, counted 0)")
     b = r["bus"]
     p(f"  bus: {b['request_frames_seen_by_sim']} request frames for {r['transactions']} "
       f"transactions; retries {b['retries']}, resyncs {b['resyncs']}; "

@@ -43,8 +43,13 @@ extern "C" {
 /* ---- policy ----------------------------------------------------------------- */
 #define MBFB_DEFAULT_RETRIES 3  /* SetPro manual 5.6: retry at least 3 times      */
 #define MBFB_OFFLINE_AFTER   3  /* consecutive failed transactions -> back-off    */
-#define MBFB_PROBE_FIRST_MS  500
-#define MBFB_PROBE_MAX_MS    8000
+/* A device in back-off is probed (one attempt) once per probe interval: at least
+ * MBFB_PROBE_MIN_MS, and MBFB_PROBE_SHARE response timeouts, so a dead device costs at
+ * most 1/MBFB_PROBE_SHARE of the line however long it stays dead, and a device that
+ * comes back is found within one interval (README "Back-off"). A port that could not be
+ * opened is tried again after MBFB_PROBE_MIN_MS. */
+#define MBFB_PROBE_MIN_MS    500
+#define MBFB_PROBE_SHARE     10
 #define MBFB_TURNAROUND_US   10000 /* after a broadcast: SetPro processing max 10 ms */
 #define MBFB_PROCESSING_US   10000 /* device processing time used in timeouts      */
 #define MBFB_QUIET_LIMIT_T   3  /* a line that never falls silent is waited for at most
@@ -225,8 +230,11 @@ typedef struct mbfb_slot {
 typedef struct mbfb_shape {
     int fc;                  /* function code of the request                      */
     int bytes;               /* reads: the reply's byte count (2 x registers)     */
+    int addr;                /* reads: the first register (a probe reads it again) */
     uint16_t echo[2];        /* writes: the echo's address and value / count      */
     int64_t t_us;            /* when that attempt was sent                         */
+    int readable;            /* reads: inside a range that read well, so never answered
+                                with a fixed exception (mbfb_worker.c)              */
 } mbfb_shape_t;
 
 /** A read range known to be readable on the device (plan items, good reads). */
@@ -240,7 +248,7 @@ typedef struct mbfb_dev {
     uint32_t diag_seq;       /* atomic: bumped after every diag change            */
     /* back-off: worker only */
     int fails;               /* consecutive failed transactions                   */
-    int probe_ms;            /* current probe interval                            */
+    int64_t probe_us;        /* probe interval; > 0: in back-off                  */
     int64_t next_probe_us;
     /* resynchronisation: worker only */
     int in_step;             /* 1: no reply of an earlier request can still come  */

@@ -90,15 +90,28 @@ static void busy_add(mbfb_bus_t *bus, int64_t now, int64_t us)
 
 static void hear_late_replies(mbfb_bus_t *bus);
 
+/* Modbus exception codes that a request draws each time it is sent, as the device's map
+ * does not change: illegal function, data address, data value. The others (device
+ * failure, acknowledge, busy) may answer any request. */
+#define MBFB_EXC_FIXED_MAX 3
+
+/* Could a request of outstanding shape sh be answered with exception `code` (0: any)?
+ * Any request of its function may, except a read inside a range that read well
+ * (sh->readable): that one draws data or a passing exception, never a fixed one. */
+static int exception_fits_shape(const mbfb_shape_t *sh, int fc, int code)
+{
+    return sh->fc == fc && !(sh->readable && code >= 1 && code <= MBFB_EXC_FIXED_MAX);
+}
+
 /* Does a whole, checked reply frame f (slave + PDU, len bytes) fit outstanding shape sh?
  * A read's reply by its byte count, a write's echo by its address and value / count, an
- * exception by its function alone (any request of that function may end in one). */
+ * exception by its function and code (exception_fits_shape). */
 static int reply_fits_shape(const mbfb_shape_t *sh, const uint8_t *f, int len)
 {
     if (sh->fc != (f[1] & 0x7F))
         return 0;
     if (f[1] & 0x80)
-        return 1;
+        return len >= 3 && exception_fits_shape(sh, sh->fc, f[2]);
     if (sh->fc == 3 || sh->fc == 4)
         return len >= 3 && sh->bytes == f[2];
     return len >= 6 && sh->echo[0] == (uint16_t)(f[2] << 8 | f[3]) &&
@@ -130,7 +143,7 @@ static int retire_heard(mbfb_bus_t *bus, const uint8_t *f, int len)
         dev->n_outstanding--;
         if (dev->fails > 0) {
             dev->fails = 0;
-            dev->probe_ms = 0;
+            dev->probe_us = 0;
             MBFB_DIAG_SET(dev, offline, 0u);
         }
         return 1;
@@ -250,6 +263,16 @@ static int shape_taken(const mbfb_dev_t *dev, int fc, int count)
     return 0;
 }
 
+/* Is the read (fc, addr, count) inside a range that read well on the device? */
+static int known_readable(const mbfb_dev_t *dev, int fc, int addr, int count)
+{
+    for (int i = 0; i < dev->n_known; i++)
+        if (dev->known[i].fc == fc && addr >= dev->known[i].addr &&
+            addr + count <= dev->known[i].addr + dev->known[i].count)
+            return 1;
+    return 0;
+}
+
 /* After a failed attempt: out of step (serial lines); the attempt's reply shape becomes
  * outstanding: a read's (fc, byte count), a write's echo (fc, address, value / count).
  * Only reads are sent out of step, so a write's echo is never taken for an answer; its
@@ -266,9 +289,16 @@ static void out_of_step(mbfb_bus_t *bus, mbfb_dev_t *dev, int fc, int addr, int 
     sh.fc = fc;
     sh.t_us = t;
     if (fc == 3 || fc == 4) {
-        if (shape_taken(dev, fc, count))
-            return;
+        int readable = known_readable(dev, fc, addr, count);
+        for (int i = 0; i < dev->n_outstanding; i++)
+            if (dev->outstanding[i].fc == fc && dev->outstanding[i].bytes == 2 * count) {
+                dev->outstanding[i].readable &= readable; /* either may be answered */
+                dev->outstanding[i].t_us = t;             /* a probe sent it again   */
+                return;
+            }
         sh.bytes = 2 * count;
+        sh.addr = addr;
+        sh.readable = readable;
     } else {
         sh.echo[0] = (uint16_t)addr;
         sh.echo[1] = fc == 6 ? vals[0] : (uint16_t)count;
@@ -324,11 +354,11 @@ static void remember_read(mbfb_dev_t *dev, int fc, int addr, int count)
     dev->known[0].count = count;
 }
 
-/* Is a reply with exception function fc|0x80 possible from an outstanding request? */
-static int exception_taken(const mbfb_dev_t *dev, int fc)
+/* Could an outstanding request still be answered with exception `code` (0: any) of fc? */
+static int exception_outstanding(const mbfb_dev_t *dev, int fc, int code)
 {
     for (int i = 0; i < dev->n_outstanding; i++)
-        if (dev->outstanding[i].fc == fc)
+        if (exception_fits_shape(&dev->outstanding[i], fc, code))
             return 1;
     return 0;
 }
@@ -368,8 +398,11 @@ static void shortest_free_from(const mbfb_dev_t *dev, int fc, int addr, mbfb_ran
  *  3. a read with a function none of whose requests is outstanding (3 <-> 4): any answer,
  *     data or exception, can only be the answer to it (one register at the request's
  *     address: the shortest);
- *  4. the shortest read of any count from the request's address, the request's function
- *     first, whose shape is free: a data reply proves it, an exception only as in 3.
+ *  4. the shortest read of any count from the request's address whose shape is free,
+ *     first of a function whose outstanding reads all lie inside ranges that read well:
+ *     a data reply proves it, and so does an exception no outstanding request can give
+ *     (a read past the device's map answered "illegal data address" while the earlier
+ *     attempts were reads inside it).
  * So a read is found while fewer than MBFB_OUTSTANDING_MAX shapes are outstanding: a
  * window's shapes running out never refuses a request. Returns 1 with *r, or 0 when the
  * outstanding set is full. */
@@ -403,13 +436,39 @@ static int pick_resync(mbfb_bus_t *bus, int devidx, int fc, int addr, int count,
     for (int i = 0; i < dev->n_known; i++)
         shortest_free_in_window(dev, dev->known[i].fc, dev->known[i].addr,
                                 dev->known[i].count, r);
-    if (r->count == 0 && !exception_taken(dev, other_fc))
+    if (r->count == 0 && !exception_outstanding(dev, other_fc, 0))
         shortest_free_from(dev, other_fc, addr, r); /* one register */
-    if (r->count == 0) {
-        shortest_free_from(dev, read_fc, addr, r);
-        shortest_free_from(dev, other_fc, addr, r);
-    }
+    /* any count: a function a fixed exception would prove first (one whose outstanding
+     * reads are all inside ranges that read well: a read past the device's map then
+     * proves the step by its exception), then either */
+    for (int pass = 0; pass < 2 && r->count == 0; pass++)
+        for (int k = 0; k < 2; k++) {
+            int f = k == 0 ? read_fc : other_fc;
+            if (pass == 1 || !exception_outstanding(dev, f, MBFB_EXC_FIXED_MAX))
+                shortest_free_from(dev, f, addr, r);
+        }
     return r->count > 0;
+}
+
+/* The probe of a device in back-off: the read of its newest outstanding read shape, so
+ * the probes of a long outage use up no more shapes (a dead device would otherwise take
+ * every shape its map allows, and once back it could find no read that proves the step).
+ * Any answer shows the device is back; its data is not used: it may be an earlier
+ * request's. Returns 1 with *r, or 0 when no read shape is outstanding. */
+static int pick_probe(const mbfb_dev_t *dev, mbfb_range_t *r)
+{
+    const mbfb_shape_t *newest = NULL;
+    for (int i = 0; i < dev->n_outstanding; i++) {
+        const mbfb_shape_t *sh = &dev->outstanding[i];
+        if ((sh->fc == 3 || sh->fc == 4) && (newest == NULL || sh->t_us > newest->t_us))
+            newest = sh;
+    }
+    if (newest == NULL)
+        return 0;
+    r->fc = newest->fc;
+    r->addr = newest->addr;
+    r->count = newest->bytes / 2;
+    return 1;
 }
 
 /* ---- one request with its retries, resyncs and read-backs ------------------------ */
@@ -419,6 +478,7 @@ typedef struct request {
     const uint16_t *vals;     /* writes */
     uint16_t *out;            /* reads: count registers */
     int budget;               /* failed attempts allowed                               */
+    int probe;                /* the device is in back-off: its first attempt probes it */
     int answered;             /* out: a valid reply (or exception) came from the device */
     int sent;                 /* out: attempts put on the wire                         */
     int write_sent;           /* out: the write itself went on the wire (maybe applied) */
@@ -445,23 +505,45 @@ static int run_attempts(mbfb_bus_t *bus, request_t *op)
         if (failures >= op->budget)
             return unknown ? MBFB_E_UNCONFIRMED : err;
         if (!dev->in_step) { /* only a resync read may go */
-            int resync_is_readback, resync_is_request, exception_proves;
+            int resync_is_readback, resync_is_request;
             /* listen first: a late reply heard now frees its shape for the choice */
             if (wait_quiet(bus, dev->slave) < 0)
                 return -MBFB_E_PORTLOST;
+            if (op->probe && pick_probe(dev, &r)) {
+                op->probe = 0;
+                next_attempt(dev, op);
+                MBFB_DIAG_INC(dev, resyncs);
+                rc = send_and_check(bus, dev, r.fc, r.addr, r.count, NULL, resync_words);
+                if (rc == -MBFB_E_PORTLOST)
+                    return rc;
+                out_of_step(bus, dev, r.fc, r.addr, r.count, NULL, mbfb_now_us());
+                failures++;
+                if (rc == MBFB_OK || rc >= MBFB_E_EXCEPTION_BASE) {
+                    /* back: out of back-off, and one resync read may follow */
+                    op->answered = 1;
+                    dev->fails = 0;
+                    dev->probe_us = 0;
+                    MBFB_DIAG_SET(dev, offline, 0u);
+                    op->budget = failures + 1;
+                } else {
+                    err = rc;
+                }
+                continue;
+            }
             if (!pick_resync(bus, op->devidx, op->fc, op->addr, op->count, unknown, &r))
                 return unknown ? MBFB_E_UNCONFIRMED : (op->sent ? err : MBFB_E_OFFLINE);
             resync_is_readback =
                 unknown && r.fc == 3 && r.addr == op->addr && r.count == op->count;
             resync_is_request =
                 !write && r.fc == op->fc && r.addr == op->addr && r.count == op->count;
-            exception_proves = !exception_taken(dev, r.fc); /* no earlier one can come */
             next_attempt(dev, op);
             MBFB_DIAG_INC(dev, resyncs);
             rc = send_and_check(bus, dev, r.fc, r.addr, r.count, NULL, resync_words);
             if (rc == -MBFB_E_PORTLOST)
                 return rc;
-            if (rc >= MBFB_E_EXCEPTION_BASE && exception_proves) {
+            /* an exception no earlier request of the device can still give is the answer */
+            if (rc >= MBFB_E_EXCEPTION_BASE &&
+                !exception_outstanding(dev, r.fc, rc - MBFB_E_EXCEPTION_BASE)) {
                 op->answered = 1;
                 in_step(bus, dev);
                 if (resync_is_readback)
@@ -535,26 +617,33 @@ static int run_attempts(mbfb_bus_t *bus, request_t *op)
 
 /* ---- back-off ---------------------------------------------------------------------- */
 
-/* Back-off bookkeeping after a request that put something on the wire. */
-static void update_backoff(mbfb_dev_t *dev, int answered)
+/* Back-off bookkeeping after a request that put something on the wire: three failed
+ * requests in a row start it; then one probe per interval (MBFB_PROBE_MIN_MS, or
+ * MBFB_PROBE_SHARE of the request's response timeout if longer), the same however long
+ * the device stays silent: it is found again within one interval of its return. */
+static void update_backoff(mbfb_bus_t *bus, mbfb_dev_t *dev, int answered)
 {
+    int64_t interval = (int64_t)MBFB_PROBE_SHARE * bus->timeout_us;
+
     if (answered) {
         dev->fails = 0;
-        dev->probe_ms = 0;
+        dev->probe_us = 0;
         MBFB_DIAG_SET(dev, offline, 0u);
         return;
     }
-    dev->fails++;
-    if (dev->probe_ms > 0) /* a probe failed: probe less often */
-        dev->probe_ms = dev->probe_ms * 2 > MBFB_PROBE_MAX_MS ? MBFB_PROBE_MAX_MS
-                                                               : dev->probe_ms * 2;
-    else if (dev->fails >= MBFB_OFFLINE_AFTER)
-        dev->probe_ms = MBFB_PROBE_FIRST_MS;
-    if (dev->probe_ms > 0) {
-        dev->next_probe_us = mbfb_now_us() + (int64_t)dev->probe_ms * 1000;
-        MBFB_DIAG_SET(dev, offline, 1u);
-    }
+    if (++dev->fails < MBFB_OFFLINE_AFTER)
+        return;
+    dev->probe_us = interval > (int64_t)MBFB_PROBE_MIN_MS * 1000 ? interval
+                                                               : (int64_t)MBFB_PROBE_MIN_MS * 1000;
+    dev->next_probe_us = mbfb_now_us() + dev->probe_us;
+    MBFB_DIAG_SET(dev, offline, 1u);
 }
+
+/* Probes in one MBFB_LATE_MAX_MS, with the failed requests before back-off, must leave
+ * reply shapes free: a dead device is probed, never refused for want of a shape. */
+typedef char mbfb_probes_leave_shapes_free[
+    MBFB_LATE_MAX_MS / MBFB_PROBE_MIN_MS + 1 + MBFB_DEFAULT_RETRIES + MBFB_OFFLINE_AFTER <=
+            MBFB_OUTSTANDING_MAX ? 1 : -1]; /* C and C++ alike (no _Static_assert in C++11) */
 
 /* Port lost: close it and end everything queued. The next request reopens it. */
 static void port_lost(mbfb_bus_t *bus, mbfb_dev_t *dev)
@@ -595,14 +684,14 @@ static void plans_no_port(mbfb_bus_t *bus, int64_t now, int err)
 static int device_request(mbfb_bus_t *bus, request_t *op)
 {
     mbfb_dev_t *dev = mbfb_devs[op->devidx];
-    int offline = dev->probe_ms > 0, rc;
+    int offline = dev->probe_us > 0, rc;
 
     /* back-off: no bus time; but a late reply of the device waiting in the port is heard
      * first (the silence wait reads it), and retiring its shape ends the wait */
     if (offline && mbfb_now_us() < dev->next_probe_us && bus->fd >= 0 &&
         bus->be->needs_resync && mbfb_fd_wait_input(bus->fd, 0) == 1)
         (void)wait_quiet(bus, dev->slave); /* a lost port shows in the next attempt */
-    offline = dev->probe_ms > 0;
+    offline = dev->probe_us > 0;
     if (offline && mbfb_now_us() < dev->next_probe_us) {
         set_error(dev, MBFB_E_OFFLINE);
         return MBFB_E_OFFLINE;
@@ -611,7 +700,7 @@ static int device_request(mbfb_bus_t *bus, request_t *op)
         /* plans try again only after a probe interval: no spinning on open() */
         int64_t now = mbfb_now_us();
         int err = rc == -MBFB_E_BAUD || rc == -MBFB_E_DIRECTION ? -rc : MBFB_E_NOPORT;
-        bus->reopen_us = now + (int64_t)MBFB_PROBE_FIRST_MS * 1000;
+        bus->reopen_us = now + (int64_t)MBFB_PROBE_MIN_MS * 1000;
         set_error(dev, err);
         plans_no_port(bus, now, err); /* the caller's plan included: it publishes nothing */
         return err;
@@ -623,6 +712,7 @@ static int device_request(mbfb_bus_t *bus, request_t *op)
      * because its previous request ran out of attempts: each failed resync read uses
      * up a reply shape for MBFB_LATE_MAX_MS, which a dead device must not exhaust. */
     op->budget = offline || !dev->in_step ? 1 : 1 + bus->cfg.retries;
+    op->probe = offline;
     op->answered = 0;
     op->sent = 0;
     op->write_sent = 0;
@@ -636,13 +726,13 @@ static int device_request(mbfb_bus_t *bus, request_t *op)
         return rc;
     }
     if (op->sent > 0) {
-        update_backoff(dev, op->answered);
+        update_backoff(bus, dev, op->answered);
     } else if (rc == MBFB_E_OFFLINE) { /* outstanding set full: wait for the oldest */
         int64_t t = dev->n_outstanding > 0 ? dev->outstanding[0].t_us : mbfb_now_us();
         for (int i = 1; i < dev->n_outstanding; i++)
             t = dev->outstanding[i].t_us < t ? dev->outstanding[i].t_us : t;
-        if (dev->probe_ms <= 0)
-            dev->probe_ms = MBFB_PROBE_FIRST_MS;
+        if (dev->probe_us <= 0)
+            dev->probe_us = (int64_t)MBFB_PROBE_MIN_MS * 1000;
         dev->next_probe_us = t + (int64_t)MBFB_LATE_MAX_MS * 1000;
         MBFB_DIAG_SET(dev, offline, 1u);
     }
@@ -698,7 +788,7 @@ static int64_t plan_due(mbfb_bus_t *bus, mbfb_plan_t *p)
     else
         due = p->last_start_us +
               (int64_t)__atomic_load_n(&p->period_ms, __ATOMIC_RELAXED) * 1000;
-    if (dev->probe_ms > 0 && dev->next_probe_us > due)
+    if (dev->probe_us > 0 && dev->next_probe_us > due)
         due = dev->next_probe_us;
     if (bus->fd < 0 && bus->reopen_us > due)
         due = bus->reopen_us;

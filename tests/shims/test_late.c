@@ -301,6 +301,75 @@ static void late_heard_ends_backoff(void)
     teardown();
 }
 
+/* A device with a small map, like the MT-S9's: FC03 of registers 0..9; a read past them
+ * is answered "illegal data address" (2), FC04 "illegal function" (1). */
+#define SHAPES_MAX 64
+static int shapes_seen[SHAPES_MAX]; /* fc << 16 | count of each request the peer got */
+static int n_shapes_seen;           /* atomic: the peer's thread writes it */
+
+static void small_map(peer_t *p, int n, const uint8_t *f, int len, peer_reply_t *r)
+{
+    int fc = f[1], end = (f[2] << 8 | f[3]) + (f[4] << 8 | f[5]);
+    int k = __atomic_load_n(&n_shapes_seen, __ATOMIC_RELAXED);
+    uint8_t ex[3];
+    if (k < SHAPES_MAX) {
+        shapes_seen[k] = fc << 16 | (f[4] << 8 | f[5]);
+        __atomic_store_n(&n_shapes_seen, k + 1, __ATOMIC_RELEASE);
+    }
+    if ((fc == 3 && end <= NREG) || fc == 6 || fc == 16) {
+        peer_answer(p, n, f, len, r);
+        return;
+    }
+    ex[0] = f[0];
+    ex[1] = (uint8_t)(fc | 0x80);
+    ex[2] = fc == 3 ? 2 : 1;
+    peer_reply_frame(p, r, ex, 3);
+}
+
+/* That device silent for about 6 s (an outage: three failed requests, then back-off with
+ * a probe every 0.5 s), then back. The probes read the newest outstanding shape again, so
+ * the outage uses up no more reply shapes than the six of the three failed requests (the
+ * request and its three resync reads, two single resync reads); each probe taking a new
+ * one would use up the ten FC03 shapes the map allows, then FC04's and reads past the
+ * map, which such a device answers with exceptions. Back, the first request that goes on
+ * the wire (the others are refused OFFLINE until the next probe) gets its own answer. */
+static void outage_small_map(void)
+{
+    uint16_t v[NREG] = {0};
+    int dev = t_serial_dev(&P, small_map, framing, 9600, 50, 3), rc = 0, sent = 0;
+    __atomic_store_n(&n_shapes_seen, 0, __ATOMIC_RELEASE);
+    CHECK_EQ(t_run(dev, 3, 0, NREG, NULL, v, NREG), NREG); /* a range that reads well */
+    int first = __atomic_load_n(&n_shapes_seen, __ATOMIC_ACQUIRE), distinct = 0, n;
+    peer_set_dead(&P, 1, 1);
+    for (int64_t end = t_now_us() + 20000000; t_diag(dev).resyncs < 16 && t_now_us() < end;
+         t_sleep_ms(20))
+        (void)t_run(dev, 3, 0, 2, NULL, v, 2); /* 3 requests, 11 probes: 6 s */
+    CHECK(t_diag(dev).resyncs >= 16);
+    CHECK_EQ(t_diag(dev).offline, 1);
+    n = __atomic_load_n(&n_shapes_seen, __ATOMIC_ACQUIRE);
+    for (int i = first; i < n; i++) {
+        int j = first;
+        while (j < i && shapes_seen[j] != shapes_seen[i])
+            j++;
+        distinct += j == i;
+    }
+    CHECK(n - first >= 17);             /* every attempt reached the (silent) peer */
+    CHECK_EQ(distinct, 6);              /* the probes: no new shape */
+    peer_set_reg(&P, 1, 0, 0x4321);
+    peer_set_dead(&P, 1, 0);
+    for (int64_t end = t_now_us() + 3000000; t_now_us() < end && !sent; t_sleep_ms(20)) {
+        memset(v, 0, sizeof v);
+        rc = t_run(dev, 3, 0, 2, NULL, v, 2);
+        sent = rc != -MBFB_E_OFFLINE; /* refused until the next probe: not on the wire */
+    }
+    CHECK_EQ(rc, 2);                    /* the first one sent: its own answer */
+    CHECK_EQ(v[0], 0x4321);
+    CHECK_EQ(v[1], 0x1001);
+    CHECK_EQ(t_diag(dev).offline, 0);
+    CHECK_EQ(t_diag(dev).crc_errors + t_diag(dev).bad_replies, 0);
+    teardown();
+}
+
 /* A valid-looking answer to the same question with a wrong value, in this framing. */
 static int wrong_answer(uint8_t *out)
 {
@@ -433,6 +502,7 @@ int main(void)
         {late_heard_in_resync_wait, "a late reply heard in a resync read's wait"},
         {late_echo_heard, "a write's late echo heard"},
         {late_heard_ends_backoff, "a heard late reply ends back-off"},
+        {outage_small_map, "back after an outage, small map"},
         {late_trickling, "late reply still trickling"},
         {babble_short, "another talker"},
         {babble_forever, "babbling line"},
