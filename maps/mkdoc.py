@@ -62,6 +62,8 @@ when it finds no such constant at all:
 |---|---|---|
 | `<P>_REG_<NAME>` | the address of register NAME (or alias) | `MVD_REG_SV : UINT := 16#0000;` |
 | `<P>_<TABLE>_<LABEL>` | code LABEL of table TABLE | `FDC_CMND_RESET : UINT := 16#6825;` |
+| `<P>_<TABLE>_CODE_<LABEL>` | the same, for when `<P>_<TABLE>_<LABEL>` is the name of an enumeration value | `MVD_UNIT_CODE_ENG : INT := 16#0E;` |
+| `<P>_<TABLE>_BY_CODE` (an array) | the labels (numbers) of table TABLE by code; bounds: its lowest and highest code, consecutive | `MTS_BAUD_BY_CODE : ARRAY[0..9] OF DINT := [2400, 4800, ...];` |
 | `<P>_<FC>_MAX_WORDS` (FC = `FC03`, `FC04`, `FC16`) | the function's `max_words` | `FDC_FC03_MAX_WORDS : INT := 80;` |
 | `<P>_OFFSET_<SCALE>` | the scale's offset | `FDC_OFFSET_S4 : UINT := 19999;` |
 | `<P>_DEC_<SCALE>` | the scale's fixed decimals | `FDC_DEC_F2 : INT := 2;` |

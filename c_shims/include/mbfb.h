@@ -160,6 +160,13 @@ int mbfb_dev_open(int bus, int slave);
 
 /* ---- scan side: never block, never allocate ------------------------------- */
 
+/* The Modbus functions a request or plan item carries (fc of mbfb_post, mbfb_post_write,
+ * mbfb_plan_item_t); the ST blocks' MB_FUNCTION_CODES mirrors them. */
+#define MBFB_FC_READ_HOLDING    3
+#define MBFB_FC_READ_INPUT      4
+#define MBFB_FC_WRITE_SINGLE    6
+#define MBFB_FC_WRITE_MULTIPLE 16
+
 /** Post a transaction. fc: 3, 4 (read `count` registers from `addr`), 6 (write values[0]
  *  to `addr`, count 1), 16 (write `count` values from `addr`). Values are copied.
  *  Returns a request handle > 0, or a negative error; nothing is sent on error. */

@@ -5,7 +5,8 @@
     python3 tests/maps/check_st.py [FILE_OR_DIR ...]   # default: st_src/ of this checkout
 
 Every `VAR CONSTANT` / `VAR_GLOBAL CONSTANT` entry whose name starts with MVD_, MTS_ or FDC_
-must equal what its device's map says. Exit 0 when all agree; 1 on any difference, on a
+must equal what its device's map says: a number, or an array <P>_<TABLE>_BY_CODE whose
+elements are the table's (numeric) labels by code. Exit 0 when all agree; 1 on any difference, on a
 prefixed constant the rule does not know, or when no prefixed constant is found at all (so the
 check cannot pass empty); 2 on bad arguments or an unreadable map.
 """
@@ -27,6 +28,10 @@ PREFIXES = {"MVD": "mvd94", "MTS": "mts9", "FDC": "fdc100"}
 COMMENT = re.compile(r"\(\*.*?\*\)|//[^\n]*", re.S)
 BLOCK = re.compile(r"\bVAR(?:_GLOBAL)?\s+CONSTANT\b(.*?)\bEND_VAR\b", re.S | re.I)
 ENTRY = re.compile(r"([A-Za-z_][A-Za-z0-9_]*)\s*:\s*([A-Za-z_][A-Za-z0-9_]*)\s*:=\s*([^;]+);")
+ARRAY = re.compile(r"([A-Za-z_][A-Za-z0-9_]*)\s*:\s*ARRAY\s*\[\s*([^\].]+?)\s*\.\.\s*([^\]]+?)\s*\]"
+                   r"\s*OF\s*[A-Za-z_][A-Za-z0-9_]*\s*:=\s*\[([^\]]*)\]\s*;", re.I)
+BY_CODE = "_BY_CODE"     # <P>_<TABLE>_BY_CODE: an array, element [code] = the code's label
+CODE_ALIAS = "CODE_"     # <P>_<TABLE>_CODE_<LABEL>: <P>_<TABLE>_<LABEL> when an enum value has that name
 FC_MAX = re.compile(r"FC0?(\d+)_MAX_WORDS$")
 
 
@@ -45,7 +50,8 @@ def st_int(text: str) -> int:
 
 
 def constants(paths):
-    """(file, line, name, value text) of every constant in the VAR CONSTANT blocks."""
+    """(file, line, name, value text) of every constant in the VAR CONSTANT blocks; the value
+    text of an array is (low bound, high bound, [element texts])."""
     out = []
     for path in paths:
         with open(path, encoding="utf-8", errors="replace") as fh:
@@ -55,6 +61,10 @@ def constants(paths):
             for e in ENTRY.finditer(block.group(1)):
                 line = clean.count("\n", 0, block.start(1) + e.start()) + 1
                 out.append((path, line, e.group(1), e.group(3).strip()))
+            for a in ARRAY.finditer(block.group(1)):
+                line = clean.count("\n", 0, block.start(1) + a.start()) + 1
+                out.append((path, line, a.group(1),
+                            (a.group(2), a.group(3), [x.strip() for x in a.group(4).split(",")])))
     return out
 
 
@@ -80,9 +90,14 @@ def expected(m, rest: str):
                 raise KeyError(f"no scale {rest[len(kind):]} with a fixed {key} in {m.device}.json")
             return sc.get(key, 0), f"{key} of scale {rest[len(kind):]}"
     for table in sorted(m.tables, key=len, reverse=True):
+        if rest == table + BY_CODE and "codes" in m.tables[table]:
+            return by_code(m, table)
         if rest.startswith(table + "_") and "codes" in m.tables[table]:
             label = rest[len(table) + 1:]
             exact = [v for k, v in m.table(table).items() if mbmap.st_name(k) == label]
+            if not exact and label.startswith(CODE_ALIAS):
+                label = label[len(CODE_ALIAS):]
+                exact = [v for k, v in m.table(table).items() if mbmap.st_name(k) == label]
             if not exact:
                 raise KeyError(f"table {table} has no label {label} (labels as in the map, "
                                "'_' for other characters)")
@@ -90,7 +105,32 @@ def expected(m, rest: str):
             if not isinstance(value, int):
                 raise KeyError(f"table {table} entry {label} is not a number")
             return value, f"{table} code {m.label(table, value)}"
-    raise KeyError("not a register (REG_), table code, FCnn_MAX_WORDS, OFFSET_ or DEC_ name")
+    raise KeyError("not a register (REG_), table code, <TABLE>_BY_CODE, FCnn_MAX_WORDS, "
+                   "OFFSET_ or DEC_ name")
+
+
+def by_code(m, table: str):
+    """What an array <P>_<TABLE>_BY_CODE must hold: (low code, [label of each code from low
+    to high]); the table's codes must be consecutive numbers, its labels numbers."""
+    codes = m.table(table)
+    by = {v: k for k, v in codes.items()}
+    if not all(isinstance(v, int) for v in by) or sorted(by) != list(range(min(by), max(by) + 1)):
+        raise KeyError(f"table {table}'s codes are not consecutive numbers")
+    try:
+        labels = [int(by[c]) for c in sorted(by)]
+    except ValueError:
+        raise KeyError(f"table {table}'s labels are not numbers") from None
+    return (min(by), labels), f"{table} labels by code {min(by)}..{max(by)}"
+
+
+def array_value(text):
+    """(low bound, [elements]) of an array's (low, high, [element texts]); ValueError if the
+    bounds do not match the number of elements."""
+    low, high, items = text
+    low, high, values = st_int(low), st_int(high), [st_int(x) for x in items]
+    if high - low + 1 != len(values):
+        raise ValueError(f"{len(values)} elements for [{low}..{high}]")
+    return low, values
 
 
 def check(paths, maps_dir=MAPS, out=sys.stdout) -> int:
@@ -108,13 +148,26 @@ def check(paths, maps_dir=MAPS, out=sys.stdout) -> int:
             print(f"{where}: unknown to {m.device}.json: {str(err).strip(chr(34))}", file=out)
             bad += 1
             continue
-        try:
-            value = st_int(text)
-        except ValueError:
-            print(f"{where}: value {text!r} is not an integer literal", file=out)
+        if isinstance(text, tuple) != isinstance(want, tuple):
+            print(f"{where}: {'an array' if isinstance(text, tuple) else 'a number'}, but "
+                  f"{m.device}.json has {'an array' if isinstance(want, tuple) else 'a number'} "
+                  f"for it ({what})", file=out)
             bad += 1
             continue
-        if value != want:
+        try:
+            value = array_value(text) if isinstance(text, tuple) else st_int(text)
+        except ValueError as err:
+            print(f"{where}: value {text!r} is not an integer literal ({err})", file=out)
+            bad += 1
+            continue
+        if isinstance(value, tuple):
+            if value != want:
+                print(f"{where} = [{value[0]}..] {value[1]}, but {m.device}.json says [{want[0]}..] "
+                      f"{want[1]} ({what})", file=out)
+                bad += 1
+            else:
+                print(f"{where}: ok ({what})", file=out)
+        elif value != want:
             print(f"{where} = {value} (0x{value & 0xFFFF:04X}), but {m.device}.json says {want} "
                   f"(0x{want & 0xFFFF:04X}, {what})", file=out)
             bad += 1

@@ -225,6 +225,41 @@ def test_check_st_fails_on_any_difference(line, why):
     assert rc == 1 and why in out, out
 
 
+# the tables held as named constants in st_src: each shown to fail when one value is wrong
+TABLES = """    MVD_UNIT_CODE_DEGC : INT := 16#0C; MVD_UNIT_CODE_DEGF : INT := 16#0D;
+    MVD_UNIT_CODE_ENG : INT := 16#0E;
+    MVD_BAUD_BPS_BY_CODE : ARRAY[28..31] OF DINT := [2400, 4800, 9600, 19200];
+    MTS_BAUD_BY_CODE : ARRAY[0..9] OF DINT := [2400, 4800, 9600, 14400, 19200, 28800, 38400, 57600,
+                                               76800, 115200];
+"""
+
+
+def with_tables(text: str) -> str:
+    return GOOD.replace("  END_VAR\n  VAR x", text + "  END_VAR\n  VAR x")
+
+
+def test_check_st_accepts_the_code_alias_and_tables_by_code():
+    rc, out = run_check_st(with_tables(TABLES))
+    assert rc == 0, out
+    assert "14 constants, 0 differ" in out
+    assert "MVD_UNIT_CODE_ENG = 14: ok (UNIT code ENG)" in out
+    assert "MTS_BAUD_BY_CODE: ok (BAUD labels by code 0..9)" in out
+
+
+@pytest.mark.parametrize("old,new,why", [
+    ("MVD_UNIT_CODE_ENG : INT := 16#0E", "MVD_UNIT_CODE_ENG : INT := 16#0F", "says 14"),
+    ("MVD_UNIT_CODE_DEGF : INT := 16#0D", "MVD_UNIT_CODE_DEGK : INT := 16#0D", "has no label DEGK"),
+    ("[2400, 4800, 9600, 19200]", "[2400, 4800, 9600, 38400]", "says [28..] [2400, 4800, 9600, 19200]"),
+    ("ARRAY[28..31]", "ARRAY[27..30]", "says [28..]"),
+    ("14400, 19200, 28800", "19200, 14400, 28800", "says [0..] [2400, 4800, 9600, 14400"),
+    ("76800, 115200]", "76800]", "elements for [0..9]"),
+])
+def test_check_st_fails_on_a_wrong_table_constant(old, new, why):
+    assert old in TABLES
+    rc, out = run_check_st(with_tables(TABLES.replace(old, new)))
+    assert rc == 1 and why in out, out
+
+
 def test_check_st_fails_when_it_finds_no_constant():
     text = GOOD.replace("VAR CONSTANT", "VAR").replace("MVD_", "X_").replace("MTS_", "Y_")
     rc, out = run_check_st(text.replace("FDC_", "Z_"))

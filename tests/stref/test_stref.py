@@ -90,3 +90,36 @@ def test_bad_input_is_one_line_and_exit_2():
     r, _ = run(src=ST.replace("E_RANGE : WORD := 202", "E_RANGE : WORD := 2x"))
     assert r.returncode == 2
     assert r.stderr.count("\n") == 1 and r.stderr.startswith("stref: ")
+
+
+SHARED = """TYPE
+  MB_ERROR_IDS : STRUCT
+    NOT_READY : WORD := 205;
+    RANGE : WORD := 202;         (* value out of range *)
+  END_STRUCT;
+END_TYPE
+
+(* Dev_Y - a device using the shared ids. *)
+FUNCTION_BLOCK Dev_Y
+  VAR_INPUT
+    SetPoint : REAL;
+  END_VAR
+  VAR
+    ERR : MB_ERROR_IDS;
+    id : WORD;
+  END_VAR
+  IF SetPoint > 1.0 THEN
+    id := ERR.RANGE;
+  END_IF;
+END_FUNCTION_BLOCK
+"""
+
+
+def test_the_shared_error_ids_a_block_uses_are_its_error_ids():
+    r, text = run("--out", "@OUT", src=SHARED)
+    assert r.returncode == 0, r.stderr
+    dev = text[text.index("## Dev_Y"):text.index("## Functions")]
+    assert "| 202 | `MB_ERROR_IDS.RANGE` | set point out of range |" in dev   # meaning from mbfb.h
+    assert "| 205 |" not in dev                                             # declared, not used
+    r, _ = run(src=SHARED.replace("ERR.RANGE", "ERR.RANGES"))
+    assert r.returncode == 2 and "MB_ERROR_IDS has no RANGES" in r.stderr

@@ -6,7 +6,8 @@
 
 For every FUNCTION_BLOCK and FUNCTION in the ST files: every input and output with its type,
 default and comment, and every ErrorID the block can give: the error constants it declares
-(`VAR CONSTANT` entries named E_* or MB_E_*, with their comments) and those of the blocks it
+(`VAR CONSTANT` entries named E_* or MB_E_*, with their comments; the fields of MB_ERROR_IDS,
+MB_Types.st, it uses through an instance: ERR.RANGE) and those of the blocks it
 instantiates, and, for a block that reaches the bus (it instantiates MB_Device, or is
 MB_Device), the shims' codes (#define MBFB_E_* in mbfb.h, and 128+x for exception x).
 A block no other POU instantiates is public (as the OpenPLC Editor palette, plc_lib/editor).
@@ -30,6 +31,9 @@ SECTION = re.compile(r"\b(VAR_INPUT|VAR_OUTPUT|VAR_IN_OUT|VAR\s+CONSTANT|VAR)\b(
 ENTRY = re.compile(r"^\s*(\w+)\s*:\s*([^;:=]+?)\s*(?::=\s*(.+?))?\s*;\s*(?:\(\*(.*?)\*\))?\s*$")
 CONST = re.compile(r"(\w+)\s*:\s*\w+\s*:=\s*([^;]+);\s*(?:\(\*(.*?)\*\))?")
 LEAD_COMMENT = re.compile(r"\A\s*\(\*(.*?)\*\)", re.S)
+SHARED_IDS = "MB_ERROR_IDS"     # the shared error ids: a STRUCT type with initialised fields
+STRUCT = re.compile(r"\b(\w+)\s*:\s*STRUCT\b(.*?)\bEND_STRUCT\b", re.S)
+INSTANCE = re.compile(r"(\w+)\s*:\s*(\w+)\s*;")
 SHIM_DEFINE = re.compile(r"^#define\s+MBFB_E_(\w+)\s+(\d+)[ \t]*(?:/\*(.*?)\*/)?", re.M | re.S)
 
 
@@ -57,9 +61,15 @@ def oneline(text):
 def parse_pous(paths):
     """{name: dict(kind, file, doc, inputs, outputs, errors, uses)} for every POU."""
     pous = {}
+    shared = {}                   # field of MB_ERROR_IDS -> its id
+    sources = []
     for path in paths:
         with open(path, encoding="utf-8") as fh:
-            src = fh.read()
+            sources.append((path, fh.read()))
+        for st in STRUCT.finditer(re.sub(r"\(\*.*?\*\)", " ", sources[-1][1], flags=re.S)):
+            if st.group(1) == SHARED_IDS:
+                shared.update((c.group(1), st_int(c.group(2))) for c in CONST.finditer(st.group(2)))
+    for path, src in sources:
         last_end = 0
         for m in POU.finditer(src):
             kind, name, rtype, body = m.group(1), m.group(2), m.group(3), m.group(4)
@@ -73,6 +83,13 @@ def parse_pous(paths):
             for sec in SECTION.finditer(body):
                 which = " ".join(sec.group(1).split())
                 text = sec.group(2)
+                for i in INSTANCE.finditer(text if which in ("VAR", "VAR CONSTANT") else ""):
+                    if i.group(2) != SHARED_IDS:
+                        continue
+                    for f in re.finditer(rf"\b{i.group(1)}\.(\w+)", body):
+                        if f.group(1) not in shared:
+                            raise InputError(f"{path}: {name}: {SHARED_IDS} has no {f.group(1)}")
+                        pou["errors"][shared[f.group(1)]] = (f"{SHARED_IDS}.{f.group(1)}", "")
                 if which == "VAR CONSTANT":
                     for c in CONST.finditer(text):
                         cname = c.group(1)
