@@ -52,6 +52,8 @@ extern "C" {
 #define MBFB_PROBE_SHARE     10
 #define MBFB_TURNAROUND_US   10000 /* after a broadcast: SetPro processing max 10 ms */
 #define MBFB_PROCESSING_US   10000 /* device processing time used in timeouts      */
+#define MBFB_LISTEN_SLICE_US 5000 /* idle with a device out of step: the worker listens
+                                     to the port, and looks for new posts this often */
 #define MBFB_QUIET_LIMIT_T   3  /* a line that never falls silent is waited for at most
                                    the silence + this many response timeouts         */
 /* A reply later than this after its request is assumed impossible: an outstanding
@@ -258,6 +260,8 @@ typedef struct mbfb_dev {
     mbfb_range_t known[MBFB_KNOWN_READS];
     /* refreshes: worker only */
     int64_t last_refresh_us;
+    int heard;               /* a late reply of it was heard since its last refresh:
+                                a plan whose refresh failed is due again at once     */
 } mbfb_dev_t;
 
 /* ---- plans ------------------------------------------------------------------
@@ -290,6 +294,7 @@ typedef struct mbfb_plan {
     /* worker only */
     uint32_t cfg_seen;       /* cfg_seq of the settings of the last refresh        */
     int64_t last_start_us, next_slow_us;
+    int failed;              /* the last refresh failed                           */
     uint32_t slow_gen;       /* inval_gen when the slow tier was last read         */
     int slow_done;           /* the slow tier was read since the last plan_set     */
     uint32_t slow_owed;      /* seq of a snapshot with a slow read the scan is owed

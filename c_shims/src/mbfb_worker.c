@@ -141,6 +141,7 @@ static int retire_heard(mbfb_bus_t *bus, const uint8_t *f, int len)
         memmove(&dev->outstanding[i], &dev->outstanding[i + 1],
                 (size_t)(dev->n_outstanding - i - 1) * sizeof dev->outstanding[0]);
         dev->n_outstanding--;
+        dev->heard = 1;
         if (dev->fails > 0) {
             dev->fails = 0;
             dev->probe_us = 0;
@@ -788,6 +789,8 @@ static int64_t plan_due(mbfb_bus_t *bus, mbfb_plan_t *p)
     else
         due = p->last_start_us +
               (int64_t)__atomic_load_n(&p->period_ms, __ATOMIC_RELAXED) * 1000;
+    if (p->failed && dev->heard)
+        due = 0; /* its device was heard: it can answer again now */
     if (dev->probe_us > 0 && dev->next_probe_us > due)
         due = dev->next_probe_us;
     if (bus->fd < 0 && bus->reopen_us > due)
@@ -823,6 +826,7 @@ static void run_refresh(mbfb_bus_t *bus, mbfb_plan_t *p)
            (p->slow_owed != 0 && /* an old one: no take has reached it yet */
             (int32_t)(__atomic_load_n(&p->taken, __ATOMIC_ACQUIRE) - p->slow_owed) < 0);
     p->last_start_us = start;
+    dev->heard = 0;
     memset(words, 0, sizeof words);
     for (int i = 0; i < n; i++) {
         request_t op;
@@ -852,6 +856,7 @@ static void run_refresh(mbfb_bus_t *bus, mbfb_plan_t *p)
         mask |= 1u << i;
         nwords += items[i].count;
     }
+    p->failed = result != MBFB_OK;
     if (result != MBFB_OK) {
         memset(words, 0, sizeof words);
         mask = 0;
@@ -932,6 +937,37 @@ static void sleep_until(mbfb_bus_t *bus, int64_t until)
 #endif
 }
 
+/* Is a device of this bus out of step, a late reply of it still possible? */
+static int bus_out_of_step(const mbfb_bus_t *bus)
+{
+    if (bus->fd < 0 || !bus->be->needs_resync)
+        return 0;
+    for (int d = 0; d < MBFB_MAX_DEVICES; d++) {
+        mbfb_dev_t *dev = __atomic_load_n(&mbfb_devs[d], __ATOMIC_ACQUIRE);
+        if (dev != NULL && dev->bus == bus->index && dev->n_outstanding > 0)
+            return 1;
+    }
+    return 0;
+}
+
+/* Idle with a device out of step: listen to the port until `until`, a post, or a late
+ * reply, which is read and retires its shape at once (a plan whose refresh failed is
+ * then due: its device can answer again, and need not wait for its next period). */
+static void listen_until(mbfb_bus_t *bus, int64_t until)
+{
+    for (;;) {
+        int64_t now = mbfb_now_us(), slice = until - now;
+        if (slice <= 0 || sem_trywait(&bus->wake) == 0)
+            return;
+        if (slice > MBFB_LISTEN_SLICE_US)
+            slice = MBFB_LISTEN_SLICE_US;
+        if (mbfb_fd_wait_input(bus->fd, slice) == 1) {
+            (void)wait_quiet(bus, bus->settle_slave); /* a lost port shows in the next attempt */
+            return;
+        }
+    }
+}
+
 /* The worker loop: posted requests, the plan due, else sleep (file comment). */
 void *mbfb_worker_main(void *arg)
 {
@@ -954,7 +990,10 @@ void *mbfb_worker_main(void *arg)
         empty_at = busy_update(bus, now);
         if (empty_at < wake_at)
             wake_at = empty_at;
-        sleep_until(bus, wake_at);
+        if (bus_out_of_step(bus))
+            listen_until(bus, wake_at);
+        else
+            sleep_until(bus, wake_at);
     }
     if (bus->fd >= 0)
         bus->be->close(bus);

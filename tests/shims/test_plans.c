@@ -14,6 +14,8 @@
  *              the window (a second), without moving diag_seq
  *   no port    a port that cannot be opened fails every plan of the bus in one pass
  *              (by snapshot numbers), and is tried again every probe interval only
+ *   late heard a refresh failed by a late reply is done again as soon as the late reply is
+ *              heard on the idle line, not a period later
  *   handover   the snapshot triple buffer under a producer that publishes as fast as it
  *              can: every snapshot taken is whole (all its fields and words from one
  *              publication, never mixed), numbers only go up, a take never returns an
@@ -109,6 +111,59 @@ static void snapshot(void)
     CHECK_EQ(wait_snap(plan, &seq, &s, NULL), 1);
     CHECK(s.seq >= 2);
     CHECK_EQ(s.words[2], 0xABCD);
+    teardown();
+}
+
+/* The second request is answered 500 ms late, the device deaf meanwhile. */
+static void late_second(peer_t *p, int n, const uint8_t *f, int len, peer_reply_t *r)
+{
+    peer_answer(p, n, f, len, r);
+    if (n == 1) {
+        r->delay_ms = 500;
+        r->pace_us = 1;
+        r->deaf = 1;
+    }
+}
+
+static int failed(const mbfb_snap_t *s)
+{
+    return s->result != 0;
+}
+
+/* A plan refreshed once a period of 100 s: its second refresh (started at once by new
+ * settings) fails, one attempt and no retries, its reply 500 ms late. The idle worker,
+ * listening while the device is out of step, hears the late reply, and the failed plan is
+ * due at once: the next snapshot is good long before the period (the wait allows 20 s). */
+static void late_heard(void)
+{
+    mbfb_plan_item_t it[1] = {{3, 0, 1, MBFB_TIER_EVERY}};
+    mbfb_bus_config_t c;
+    mbfb_snap_t s;
+    uint32_t seq = 0;
+    int bus, plan;
+    int64_t end;
+    char link[160];
+
+    t_scenario = "late heard";
+    snprintf(link, sizeof link, "%s/port", t_tmpdir());
+    CHECK_EQ(peer_start(&P, link, PEER_RTU, late_second, NULL), 0);
+    peer_set_reg(&P, 1, 0, 0x1234);
+    c = t_cfg(P.link, 38400, MBFB_FRAMING_RTU, 200, 0);
+    bus = mbfb_bus_open(&c);
+    plan = mbfb_plan_open(mbfb_dev_open(bus, 1));
+    CHECK_EQ(mbfb_plan_set(plan, it, 1, 100000, 0), 0);
+    CHECK_EQ(wait_snap(plan, &seq, &s, NULL), 1);
+    CHECK_EQ(s.result, 0);
+    CHECK_EQ(mbfb_plan_set(plan, it, 1, 100000, 0), 0); /* new settings: due at once */
+    CHECK_EQ(wait_snap(plan, &seq, &s, failed), 1);
+    CHECK_EQ(s.result, MBFB_E_TIMEOUT);
+    for (end = t_now_us() + 20000000; t_now_us() < end; t_sleep_ms(1))
+        if (mbfb_plan_take(plan, &seq, &s) == 1)
+            break;
+    CHECK_EQ(s.result, 0);              /* the next refresh: well before its period */
+    CHECK_EQ(s.words[0], 0x1234);
+    CHECK_EQ(peer_count(&P), 3);        /* the read that failed, its late reply heard,
+                                           then the read is its own resync read */
     teardown();
 }
 
@@ -563,5 +618,6 @@ int main(void)
     fairness();
     writes_first();
     refresh_diag();
+    late_heard();
     return t_done("test_plans");
 }
