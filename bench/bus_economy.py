@@ -28,6 +28,7 @@ import tempfile
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, os.path.join(ROOT, "tools", "sim"))
 from simctl import Simulator  # noqa: E402
+from wire_pace import cache_value  # noqa: E402  (bench/ is on the path: this script's folder)
 
 DEFAULT_BEFORE = "e3d8370"        # last commit before the tiered polling (st_src)
 DEVICES = (("mv", 1, "MV-D94", "mvd94:1"), ("fdc", 2, "FDC-100", "fdc100:2"),
@@ -35,14 +36,6 @@ DEVICES = (("mv", 1, "MV-D94", "mvd94:1"), ("fdc", 2, "FDC-100", "fdc100:2"),
 BAUD, CHAR_BITS = 9600, 11        # 8N2: start + 8 + 2 stop
 CHAR_S = CHAR_BITS / BAUD
 GAP_S = max(3.5 * CHAR_S, 44 / BAUD)
-
-
-def cache_value(build: str, key: str) -> str | None:
-    with open(os.path.join(build, "CMakeCache.txt"), encoding="utf-8") as fh:
-        for line in fh:
-            if line.startswith(key + ":"):
-                return line.split("=", 1)[1].strip()
-    return None
 
 
 def st_sources(before: str | None, into: str) -> list[str]:

@@ -20,7 +20,6 @@ static int ascii_send(mbfb_bus_t *bus, const uint8_t *frame, int len)
 {
     char out[1 + 2 * (MBFB_FRAME_MAX + 1) + 2];
     uint8_t lrc = mbfb_lrc(frame, len);
-    int64_t start;
     int n = 0, rc;
 
     out[n++] = ':';
@@ -31,9 +30,9 @@ static int ascii_send(mbfb_bus_t *bus, const uint8_t *frame, int len)
     }
     out[n++] = '\r';
     out[n++] = '\n';
-    if ((rc = mbfb_dir_begin(bus, &start)) != 0)
+    if ((rc = mbfb_dir_begin(bus)) != 0)
         return rc;
-    return mbfb_dir_end(bus, start, len, mbfb_fd_write_all(bus, (const uint8_t *)out, n));
+    return mbfb_dir_end(bus, len, mbfb_fd_write_all(bus, (const uint8_t *)out, n));
 }
 
 enum { A_IDLE, A_HEX, A_CR };

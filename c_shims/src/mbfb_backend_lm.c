@@ -143,29 +143,27 @@ static void tcp_reconnect(mbfb_bus_t *bus)
 static int lm_send(mbfb_bus_t *bus, const uint8_t *frame, int len)
 {
     uint8_t raw[MBFB_FRAME_MAX]; /* OpenPLC's libmodbus takes a non-const pointer */
-    int64_t start;
     int rc;
 
     memcpy(raw, frame, (size_t)len);
-    if ((rc = mbfb_dir_begin(bus, &start)) != 0)
+    if ((rc = mbfb_dir_begin(bus)) != 0)
         return rc;
     rc = modbus_send_raw_request(ctx_of(bus), raw, len) == -1 ? mbfb_errno_to_err(errno) : 0;
-    return mbfb_dir_end(bus, start, len, rc);
+    return mbfb_dir_end(bus, len, rc);
 }
 
 /* MT-S9 Type 2: the frame and 00 00 where the CRC goes, written to the port. */
 static int nocrc_send(mbfb_bus_t *bus, const uint8_t *frame, int len)
 {
     uint8_t raw[MBFB_FRAME_MAX];
-    int64_t start;
     int rc;
 
     memcpy(raw, frame, (size_t)len);
     raw[len] = 0; /* "CRC check 0000" */
     raw[len + 1] = 0;
-    if ((rc = mbfb_dir_begin(bus, &start)) != 0)
+    if ((rc = mbfb_dir_begin(bus)) != 0)
         return rc;
-    return mbfb_dir_end(bus, start, len, mbfb_fd_write_all(bus, raw, len + 2));
+    return mbfb_dir_end(bus, len, mbfb_fd_write_all(bus, raw, len + 2));
 }
 
 /* Receive and check (framing, CRC) one reply with libmodbus; strip header and CRC

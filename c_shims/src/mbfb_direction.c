@@ -18,7 +18,9 @@
  * the frame has left the UART, waits dir_after_us and switches it off. "Has left" is the
  * later of tcdrain() plus one character (the shift register: many drivers report the FIFO
  * empty while the last character is still going out) and the frame's own time on the wire
- * from the first write (a driver whose tcdrain returns early cannot make the frame shorter).
+ * from when the write returned (a driver whose tcdrain returns early cannot make the frame
+ * shorter; the frame cannot have begun later than that, so the line is never dropped early
+ * however long the thread waited between raising the line and the write).
  */
 #ifndef _GNU_SOURCE
 #define _GNU_SOURCE
@@ -222,29 +224,27 @@ static void sleep_until(int64_t t_us)
     }
 }
 
-/* Switch the line to sending and wait dir_before_us; the time the frame may start. */
-int mbfb_dir_begin(mbfb_bus_t *bus, int64_t *start_us)
+/* Switch the line to sending and wait dir_before_us. */
+int mbfb_dir_begin(mbfb_bus_t *bus)
 {
     const dir_mode_t *m = mode_of(bus);
     int rc;
 
-    *start_us = 0;
     if (m->drive == NULL || bus->dir_priv == NULL)
         return 0;
     if ((rc = m->drive(bus, (dir_state_t *)bus->dir_priv, 1)) != 0)
         return rc;
     if (bus->cfg.dir_before_us > 0)
         sleep_until(mbfb_now_us() + bus->cfg.dir_before_us);
-    *start_us = mbfb_now_us();
     return 0;
 }
 
-/* The frame of frame_len (slave + PDU) written from start_us with result sent_rc: wait
- * until it has left the UART, then dir_after_us, and switch the line back to receiving. */
-int mbfb_dir_end(mbfb_bus_t *bus, int64_t start_us, int frame_len, int sent_rc)
+/* The frame of frame_len (slave + PDU) just written, with result sent_rc: wait until it
+ * has left the UART, then dir_after_us, and switch the line back to receiving. */
+int mbfb_dir_end(mbfb_bus_t *bus, int frame_len, int sent_rc)
 {
     const dir_mode_t *m = mode_of(bus);
-    int64_t gone, on_wire;
+    int64_t written = mbfb_now_us(), gone, on_wire;
     int rc;
 
     if (m->drive == NULL || bus->dir_priv == NULL)
@@ -252,7 +252,7 @@ int mbfb_dir_end(mbfb_bus_t *bus, int64_t start_us, int frame_len, int sent_rc)
     while (tcdrain(bus->fd) != 0 && errno == EINTR) {
     }
     gone = mbfb_now_us() + bus->timing.char_us; /* the shift register's last character */
-    on_wire = start_us +
+    on_wire = written +
               (int64_t)mbfb_wire_len(bus->cfg.framing, frame_len) * bus->timing.char_us;
     if (gone < on_wire)
         gone = on_wire;

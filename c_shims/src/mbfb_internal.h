@@ -182,13 +182,13 @@ int  mbfb_serial_set_baud(int fd, int baud);
 int  mbfb_dir_open(struct mbfb_bus *bus);
 /** Before the port closes: leave the mode, release the GPIO line. */
 void mbfb_dir_close(struct mbfb_bus *bus);
-/** Before a request's first byte: line to sending, dir_before_us waited; *start_us is
- *  when the frame's first byte may go. 0 or -MBFB_E_PORTLOST. */
-int  mbfb_dir_begin(struct mbfb_bus *bus, int64_t *start_us);
-/** After writing the frame (frame_len: slave + PDU; sent_rc: the write's result): wait
- *  until it has left the UART and dir_after_us, then line to receiving. Returns sent_rc
- *  when it is an error, else 0 or -MBFB_E_PORTLOST. */
-int  mbfb_dir_end(struct mbfb_bus *bus, int64_t start_us, int frame_len, int sent_rc);
+/** Before a request's first byte: line to sending, dir_before_us waited.
+ *  0 or -MBFB_E_PORTLOST. */
+int  mbfb_dir_begin(struct mbfb_bus *bus);
+/** Right after writing the frame (frame_len: slave + PDU; sent_rc: the write's result):
+ *  wait until it has left the UART and dir_after_us, then line to receiving. Returns
+ *  sent_rc when it is an error, else 0 or -MBFB_E_PORTLOST. */
+int  mbfb_dir_end(struct mbfb_bus *bus, int frame_len, int sent_rc);
 
 /* serial helpers (mbfb_serial.c) */
 /** The watched silence of every serial framing (see mbfb_backend_t.quiet). */

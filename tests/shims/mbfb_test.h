@@ -170,6 +170,9 @@ int t_serial_scenarios(const char *test, int *framing, const t_case_t *cases, in
 void t_sleep_ms(int ms);
 void t_sleep_us(long us);
 int64_t t_now_us(void);
+/** Reads and writes of every function against pymodbus_peer.py (its registers: holding
+ *  0x3000 + i, input 0x4000 + i), checked, ending with an exception past its map. */
+void t_pymodbus_conversation(int dev);
 /** A fresh temporary directory for pty links; returns path (static). */
 const char *t_tmpdir(void);
 
