@@ -486,33 +486,33 @@ typedef struct request {
 } request_t;
 
 /* Count an attempt beyond the first of this request. */
-static void next_attempt(mbfb_dev_t *dev, request_t *op)
+static void next_attempt(mbfb_dev_t *dev, request_t *request)
 {
-    if (op->sent++ > 0)
+    if (request->sent++ > 0)
         MBFB_DIAG_INC(dev, retries);
 }
 
 /* Run one request (see the file comment). Returns MBFB_OK, a positive MBFB_E_*, or
  * -MBFB_E_PORTLOST. MBFB_E_OFFLINE: no resync read was possible, nothing was sent. */
-static int run_attempts(mbfb_bus_t *bus, request_t *op)
+static int run_attempts(mbfb_bus_t *bus, request_t *request)
 {
-    mbfb_dev_t *dev = mbfb_devs[op->devidx];
-    int write = op->fc == 6 || op->fc == 16;
+    mbfb_dev_t *dev = mbfb_devs[request->devidx];
+    int write = request->fc == 6 || request->fc == 16;
     int failures = 0, err = MBFB_E_TIMEOUT, unknown = 0, rc;
     uint16_t resync_words[MBFB_MAX_READ];
     mbfb_range_t r;
 
     for (;;) {
-        if (failures >= op->budget)
+        if (failures >= request->budget)
             return unknown ? MBFB_E_UNCONFIRMED : err;
         if (!dev->in_step) { /* only a resync read may go */
             int resync_is_readback, resync_is_request;
             /* listen first: a late reply heard now frees its shape for the choice */
             if (wait_quiet(bus, dev->slave) < 0)
                 return -MBFB_E_PORTLOST;
-            if (op->probe && pick_probe(dev, &r)) {
-                op->probe = 0;
-                next_attempt(dev, op);
+            if (request->probe && pick_probe(dev, &r)) {
+                request->probe = 0;
+                next_attempt(dev, request);
                 MBFB_DIAG_INC(dev, resyncs);
                 rc = send_and_check(bus, dev, r.fc, r.addr, r.count, NULL, resync_words);
                 if (rc == -MBFB_E_PORTLOST)
@@ -521,23 +521,25 @@ static int run_attempts(mbfb_bus_t *bus, request_t *op)
                 failures++;
                 if (rc == MBFB_OK || rc >= MBFB_E_EXCEPTION_BASE) {
                     /* back: out of back-off, and one resync read may follow */
-                    op->answered = 1;
+                    request->answered = 1;
                     dev->fails = 0;
                     dev->probe_us = 0;
                     MBFB_DIAG_SET(dev, offline, 0u);
-                    op->budget = failures + 1;
+                    request->budget = failures + 1;
                 } else {
                     err = rc;
                 }
                 continue;
             }
-            if (!pick_resync(bus, op->devidx, op->fc, op->addr, op->count, unknown, &r))
-                return unknown ? MBFB_E_UNCONFIRMED : (op->sent ? err : MBFB_E_OFFLINE);
+            if (!pick_resync(bus, request->devidx, request->fc, request->addr, request->count,
+                             unknown, &r))
+                return unknown ? MBFB_E_UNCONFIRMED : (request->sent ? err : MBFB_E_OFFLINE);
             resync_is_readback =
-                unknown && r.fc == 3 && r.addr == op->addr && r.count == op->count;
+                unknown && r.fc == 3 && r.addr == request->addr && r.count == request->count;
             resync_is_request =
-                !write && r.fc == op->fc && r.addr == op->addr && r.count == op->count;
-            next_attempt(dev, op);
+                !write && r.fc == request->fc && r.addr == request->addr &&
+                r.count == request->count;
+            next_attempt(dev, request);
             MBFB_DIAG_INC(dev, resyncs);
             rc = send_and_check(bus, dev, r.fc, r.addr, r.count, NULL, resync_words);
             if (rc == -MBFB_E_PORTLOST)
@@ -545,7 +547,7 @@ static int run_attempts(mbfb_bus_t *bus, request_t *op)
             /* an exception no earlier request of the device can still give is the answer */
             if (rc >= MBFB_E_EXCEPTION_BASE &&
                 !exception_outstanding(dev, r.fc, rc - MBFB_E_EXCEPTION_BASE)) {
-                op->answered = 1;
+                request->answered = 1;
                 in_step(bus, dev);
                 if (resync_is_readback)
                     return MBFB_E_UNCONFIRMED; /* the read-back is refused */
@@ -554,7 +556,7 @@ static int run_attempts(mbfb_bus_t *bus, request_t *op)
                 continue;
             }
             if (rc != MBFB_OK) { /* this exception may be a late one: still out of step */
-                op->answered |= rc >= MBFB_E_EXCEPTION_BASE;
+                request->answered |= rc >= MBFB_E_EXCEPTION_BASE;
                 out_of_step(bus, dev, r.fc, r.addr, r.count, NULL, mbfb_now_us());
                 failures++;
                 /* an exception to a resync read of other registers is not the request's */
@@ -562,54 +564,58 @@ static int run_attempts(mbfb_bus_t *bus, request_t *op)
                     err = rc;
                 continue;
             }
-            op->answered = 1;
+            request->answered = 1;
             in_step(bus, dev);
             remember_read(dev, r.fc, r.addr, r.count);
             if (resync_is_request) { /* the resync read was the request: its answer */
-                if (op->out != NULL)
-                    memcpy(op->out, resync_words, (size_t)op->count * sizeof op->out[0]);
+                if (request->out != NULL)
+                    memcpy(request->out, resync_words,
+                           (size_t)request->count * sizeof request->out[0]);
                 return MBFB_OK;
             }
             if (!resync_is_readback)
                 continue;
         } else if (unknown) { /* in step: read the written registers back */
-            next_attempt(dev, op);
-            rc = send_and_check(bus, dev, 3, op->addr, op->count, NULL, resync_words);
+            next_attempt(dev, request);
+            rc = send_and_check(bus, dev, 3, request->addr, request->count, NULL, resync_words);
             if (rc == -MBFB_E_PORTLOST)
                 return rc;
             if (rc >= MBFB_E_EXCEPTION_BASE) {
-                op->answered = 1;
+                request->answered = 1;
                 return MBFB_E_UNCONFIRMED; /* no read-back possible */
             }
             if (rc != MBFB_OK) {
-                out_of_step(bus, dev, 3, op->addr, op->count, NULL, mbfb_now_us());
+                out_of_step(bus, dev, 3, request->addr, request->count, NULL, mbfb_now_us());
                 failures++;
                 err = rc;
                 continue;
             }
-            op->answered = 1;
+            request->answered = 1;
         }
         if (unknown) { /* resync_words holds the read-back */
-            if (memcmp(resync_words, op->vals, (size_t)op->count * sizeof op->vals[0]) == 0)
+            if (memcmp(resync_words, request->vals,
+                       (size_t)request->count * sizeof request->vals[0]) == 0)
                 return MBFB_OK; /* applied (once) */
-            if (op->policy == MBFB_WRITE_ONCE)
+            if (request->policy == MBFB_WRITE_ONCE)
                 return MBFB_E_UNCONFIRMED; /* not applied: never sent twice */
             unknown = 0;                   /* not applied: send it again */
-            if (failures >= op->budget)
+            if (failures >= request->budget)
                 return err;
         }
-        next_attempt(dev, op);
-        op->write_sent |= write;
-        rc = send_and_check(bus, dev, op->fc, op->addr, op->count, op->vals, op->out);
+        next_attempt(dev, request);
+        request->write_sent |= write;
+        rc = send_and_check(bus, dev, request->fc, request->addr, request->count, request->vals,
+                            request->out);
         if (rc == -MBFB_E_PORTLOST)
             return rc;
         if (rc == MBFB_OK || rc >= MBFB_E_EXCEPTION_BASE) {
-            op->answered = 1;
+            request->answered = 1;
             if (rc == MBFB_OK && !write && dev->slave != 0)
-                remember_read(dev, op->fc, op->addr, op->count);
+                remember_read(dev, request->fc, request->addr, request->count);
             return rc;
         }
-        out_of_step(bus, dev, op->fc, op->addr, op->count, op->vals, mbfb_now_us());
+        out_of_step(bus, dev, request->fc, request->addr, request->count, request->vals,
+                    mbfb_now_us());
         failures++;
         err = rc;
         unknown = write && dev->slave != 0;
@@ -634,8 +640,9 @@ static void update_backoff(mbfb_bus_t *bus, mbfb_dev_t *dev, int answered)
     }
     if (++dev->fails < MBFB_OFFLINE_AFTER)
         return;
-    dev->probe_us = interval > (int64_t)MBFB_PROBE_MIN_MS * 1000 ? interval
-                                                               : (int64_t)MBFB_PROBE_MIN_MS * 1000;
+    if (interval < (int64_t)MBFB_PROBE_MIN_MS * 1000)
+        interval = (int64_t)MBFB_PROBE_MIN_MS * 1000;
+    dev->probe_us = interval;
     dev->next_probe_us = mbfb_now_us() + dev->probe_us;
     MBFB_DIAG_SET(dev, offline, 1u);
 }
@@ -682,9 +689,9 @@ static void plans_no_port(mbfb_bus_t *bus, int64_t now, int err)
 }
 
 /* Run one request of a device: back-off, port, attempts. Returns its result. */
-static int device_request(mbfb_bus_t *bus, request_t *op)
+static int device_request(mbfb_bus_t *bus, request_t *request)
 {
-    mbfb_dev_t *dev = mbfb_devs[op->devidx];
+    mbfb_dev_t *dev = mbfb_devs[request->devidx];
     int offline = dev->probe_us > 0, rc;
 
     /* back-off: no bus time; but a late reply of the device waiting in the port is heard
@@ -712,22 +719,22 @@ static int device_request(mbfb_bus_t *bus, request_t *op)
     /* One attempt (a probe) for a device in back-off, and for one still out of step
      * because its previous request ran out of attempts: each failed resync read uses
      * up a reply shape for MBFB_LATE_MAX_MS, which a dead device must not exhaust. */
-    op->budget = offline || !dev->in_step ? 1 : 1 + bus->cfg.retries;
-    op->probe = offline;
-    op->answered = 0;
-    op->sent = 0;
-    op->write_sent = 0;
-    rc = run_attempts(bus, op);
+    request->budget = offline || !dev->in_step ? 1 : 1 + bus->cfg.retries;
+    request->probe = offline;
+    request->answered = 0;
+    request->sent = 0;
+    request->write_sent = 0;
+    rc = run_attempts(bus, request);
     if (rc == -MBFB_E_PORTLOST) {
         port_lost(bus, dev);
         /* a write that went out may have been applied before the port went: its outcome
          * is unknown, not failed (a read-back needs the port) */
-        rc = op->write_sent ? MBFB_E_UNCONFIRMED : MBFB_E_PORTLOST;
+        rc = request->write_sent ? MBFB_E_UNCONFIRMED : MBFB_E_PORTLOST;
         set_error(dev, rc);
         return rc;
     }
-    if (op->sent > 0) {
-        update_backoff(bus, dev, op->answered);
+    if (request->sent > 0) {
+        update_backoff(bus, dev, request->answered);
     } else if (rc == MBFB_E_OFFLINE) { /* outstanding set full: wait for the oldest */
         int64_t t = dev->n_outstanding > 0 ? dev->outstanding[0].t_us : mbfb_now_us();
         for (int i = 1; i < dev->n_outstanding; i++)
@@ -744,18 +751,18 @@ static int device_request(mbfb_bus_t *bus, request_t *op)
 /* A posted request. */
 static void run_slot(mbfb_bus_t *bus, mbfb_slot_t *s)
 {
-    request_t op;
+    request_t request;
     int rc;
 
-    memset(&op, 0, sizeof op);
-    op.devidx = s->dev;
-    op.fc = s->fc;
-    op.addr = s->addr;
-    op.count = s->count;
-    op.policy = s->policy;
-    op.vals = s->values;
-    op.out = s->values; /* reads: the slot's values are free for the result */
-    rc = device_request(bus, &op);
+    memset(&request, 0, sizeof request);
+    request.devidx = s->dev;
+    request.fc = s->fc;
+    request.addr = s->addr;
+    request.count = s->count;
+    request.policy = s->policy;
+    request.vals = s->values;
+    request.out = s->values; /* reads: the slot's values are free for the result */
+    rc = device_request(bus, &request);
     s->nvals = rc == MBFB_OK && (s->fc == 3 || s->fc == 4) ? s->count : 0;
     mbfb_slot_finish(s, rc);
 }
@@ -829,7 +836,7 @@ static void run_refresh(mbfb_bus_t *bus, mbfb_plan_t *p)
     dev->heard = 0;
     memset(words, 0, sizeof words);
     for (int i = 0; i < n; i++) {
-        request_t op;
+        request_t request;
         int rc;
         if ((items[i].tier == MBFB_TIER_SLOW && !slow) ||
             (items[i].tier == MBFB_TIER_FAST && slow)) {
@@ -840,13 +847,13 @@ static void run_refresh(mbfb_bus_t *bus, mbfb_plan_t *p)
             return;
         if (bus->fd < 0 && bus->reopen_us > start)
             return; /* a posted request could not open the port: plans_no_port ran */
-        memset(&op, 0, sizeof op);
-        op.devidx = p->dev;
-        op.fc = items[i].fc;
-        op.addr = items[i].addr;
-        op.count = items[i].count;
-        op.out = words + nwords;
-        rc = device_request(bus, &op);
+        memset(&request, 0, sizeof request);
+        request.devidx = p->dev;
+        request.fc = items[i].fc;
+        request.addr = items[i].addr;
+        request.count = items[i].count;
+        request.out = words + nwords;
+        rc = device_request(bus, &request);
         if (rc == MBFB_E_NOPORT || rc == MBFB_E_BAUD || rc == MBFB_E_DIRECTION)
             return; /* the port did not open: published with every plan (plans_no_port) */
         if (rc != MBFB_OK) {
