@@ -438,7 +438,7 @@ static void babble_forever(void)
     teardown();
 }
 
-/* Issue 8's wrong value: a read answered later than the whole retry window (held by
+/* The soak's wrong value (bench/soak): a read answered later than the whole retry window (held by
  * the peer, released once the next request of the same shape is due) was taken as the
  * answer to that next request (registers 10..19 returned the values of 0..9). Now the
  * device is out of step after the failed read: the next request is preceded by a
@@ -496,7 +496,7 @@ static void late_defect(void)
 int main(void)
 {
     static const t_case_t cases[] = {
-        {late_defect, "a reply later than the retry window (issue 8)"},
+        {late_defect, "a reply later than the retry window"},
         {late_in_wait, "late reply during the wait"},
         {late_heard_frees_its_shape, "a heard late reply frees its shape"},
         {late_heard_in_resync_wait, "a late reply heard in a resync read's wait"},
