@@ -118,6 +118,14 @@ static int reply_fits_shape(const mbfb_shape_t *sh, const uint8_t *f, int len)
            sh->echo[1] == (uint16_t)(f[4] << 8 | f[5]);
 }
 
+/* The device answered (or was heard): out of back-off, its failures count from 0 again. */
+static void end_backoff(mbfb_dev_t *dev)
+{
+    dev->fails = 0;
+    dev->probe_us = 0;
+    MBFB_DIAG_SET(dev, offline, 0u);
+}
+
 /* A whole, checked reply frame f (slave + PDU) heard outside its request: when a device of
  * this bus has its shape outstanding, retire that shape (the device gives one reply per
  * request, so that one can no longer come) and return 1; else 0. A device heard answering
@@ -142,11 +150,8 @@ static int retire_heard(mbfb_bus_t *bus, const uint8_t *f, int len)
                 (size_t)(dev->n_outstanding - i - 1) * sizeof dev->outstanding[0]);
         dev->n_outstanding--;
         dev->heard = 1;
-        if (dev->fails > 0) {
-            dev->fails = 0;
-            dev->probe_us = 0;
-            MBFB_DIAG_SET(dev, offline, 0u);
-        }
+        if (dev->fails > 0)
+            end_backoff(dev);
         return 1;
     }
     return 0;
@@ -255,13 +260,19 @@ static void expire_shapes(mbfb_dev_t *dev, int64_t now)
     dev->n_outstanding = k;
 }
 
-/* A read of `count` registers with fc: is its reply shape outstanding? */
-static int shape_taken(const mbfb_dev_t *dev, int fc, int count)
+/* The index of the outstanding reply shape of a read of `count` registers with fc, or -1. */
+static int read_shape(const mbfb_dev_t *dev, int fc, int count)
 {
     for (int i = 0; i < dev->n_outstanding; i++)
         if (dev->outstanding[i].fc == fc && dev->outstanding[i].bytes == 2 * count)
-            return 1;
-    return 0;
+            return i;
+    return -1;
+}
+
+/* A read of `count` registers with fc: is its reply shape outstanding? */
+static int shape_taken(const mbfb_dev_t *dev, int fc, int count)
+{
+    return read_shape(dev, fc, count) >= 0;
 }
 
 /* Is the read (fc, addr, count) inside a range that read well on the device? */
@@ -291,12 +302,12 @@ static void out_of_step(mbfb_bus_t *bus, mbfb_dev_t *dev, int fc, int addr, int 
     sh.t_us = t;
     if (fc == 3 || fc == 4) {
         int readable = known_readable(dev, fc, addr, count);
-        for (int i = 0; i < dev->n_outstanding; i++)
-            if (dev->outstanding[i].fc == fc && dev->outstanding[i].bytes == 2 * count) {
-                dev->outstanding[i].readable &= readable; /* either may be answered */
-                dev->outstanding[i].t_us = t;             /* a probe sent it again   */
-                return;
-            }
+        int same = read_shape(dev, fc, count);
+        if (same >= 0) {
+            dev->outstanding[same].readable &= readable; /* either may be answered */
+            dev->outstanding[same].t_us = t;             /* a probe sent it again   */
+            return;
+        }
         sh.bytes = 2 * count;
         sh.addr = addr;
         sh.readable = readable;
@@ -522,9 +533,7 @@ static int run_attempts(mbfb_bus_t *bus, request_t *request)
                 if (rc == MBFB_OK || rc >= MBFB_E_EXCEPTION_BASE) {
                     /* back: out of back-off, and one resync read may follow */
                     request->answered = 1;
-                    dev->fails = 0;
-                    dev->probe_us = 0;
-                    MBFB_DIAG_SET(dev, offline, 0u);
+                    end_backoff(dev);
                     request->budget = failures + 1;
                 } else {
                     err = rc;
@@ -633,9 +642,7 @@ static void update_backoff(mbfb_bus_t *bus, mbfb_dev_t *dev, int answered)
     int64_t interval = (int64_t)MBFB_PROBE_SHARE * bus->timeout_us;
 
     if (answered) {
-        dev->fails = 0;
-        dev->probe_us = 0;
-        MBFB_DIAG_SET(dev, offline, 0u);
+        end_backoff(dev);
         return;
     }
     if (++dev->fails < MBFB_OFFLINE_AFTER)

@@ -132,6 +132,10 @@ int peer_paced_sent(peer_t *p);
 void peer_release(peer_t *p);
 /** A well-behaved device from the register bank. */
 void peer_answer(peer_t *p, int n, const uint8_t *frame, int flen, peer_reply_t *r);
+/** peer_answer, but request `late_n` is answered `delay_ms` late by a device deaf
+ *  meanwhile (busy: what it hears is discarded). */
+void peer_answer_late_deaf(peer_t *p, int n, const uint8_t *frame, int flen, peer_reply_t *r,
+                           int late_n, int delay_ms);
 
 /* independent check functions of the peer */
 uint16_t peer_crc16(const uint8_t *buf, int len);

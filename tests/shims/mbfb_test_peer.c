@@ -501,6 +501,17 @@ void peer_answer(peer_t *p, int n, const uint8_t *f, int flen, peer_reply_t *r)
     peer_reply_frame(p, r, out, k);
 }
 
+void peer_answer_late_deaf(peer_t *p, int n, const uint8_t *frame, int flen, peer_reply_t *r,
+                           int late_n, int delay_ms)
+{
+    peer_answer(p, n, frame, flen, r);
+    if (n == late_n) {
+        r->delay_ms = delay_ms;
+        r->pace_us = 1;
+        r->deaf = 1;
+    }
+}
+
 void peer_set_reg(peer_t *p, int slave, int addr, uint16_t value)
 {
     pthread_mutex_lock(&p->lock);

@@ -172,12 +172,7 @@ static void late_trickling(void)
  * resync read. */
 static void deaf_late_first(peer_t *p, int n, const uint8_t *f, int len, peer_reply_t *r)
 {
-    peer_answer(p, n, f, len, r);
-    if (n == 0) {
-        r->delay_ms = 200;
-        r->pace_us = 1;
-        r->deaf = 1;
-    }
+    peer_answer_late_deaf(p, n, f, len, r, 0, 200);
 }
 
 static void late_heard_frees_its_shape(void)
@@ -237,12 +232,7 @@ static void late_heard_in_resync_wait(void)
  * is the value written. */
 static void deaf_late_echo(peer_t *p, int n, const uint8_t *f, int len, peer_reply_t *r)
 {
-    peer_answer(p, n, f, len, r);
-    if (n == 0) {
-        r->delay_ms = 400;
-        r->pace_us = 1;
-        r->deaf = 1;
-    }
+    peer_answer_late_deaf(p, n, f, len, r, 0, 400);
 }
 
 static void late_echo_heard(void)
@@ -272,12 +262,7 @@ static void late_echo_heard(void)
  * (it used to be refused OFFLINE until the resync shapes were MBFB_LATE_MAX_MS old). */
 static void deaf_600(peer_t *p, int n, const uint8_t *f, int len, peer_reply_t *r)
 {
-    peer_answer(p, n, f, len, r);
-    if (n == 0) {
-        r->delay_ms = 600;
-        r->pace_us = 1;
-        r->deaf = 1;
-    }
+    peer_answer_late_deaf(p, n, f, len, r, 0, 600);
 }
 
 static void late_heard_ends_backoff(void)

@@ -117,12 +117,7 @@ static void snapshot(void)
 /* The second request is answered 500 ms late, the device deaf meanwhile. */
 static void late_second(peer_t *p, int n, const uint8_t *f, int len, peer_reply_t *r)
 {
-    peer_answer(p, n, f, len, r);
-    if (n == 1) {
-        r->delay_ms = 500;
-        r->pace_us = 1;
-        r->deaf = 1;
-    }
+    peer_answer_late_deaf(p, n, f, len, r, 1, 500);
 }
 
 static int failed(const mbfb_snap_t *s)
