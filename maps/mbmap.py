@@ -17,6 +17,7 @@ from dataclasses import dataclass, field
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 DEVICES = ("mvd94", "mts9", "fdc100")
+RECIPE_PARTS = ("", "first", "limit", "lock", "author", "line", "no")
 
 
 class MapError(ValueError):
@@ -42,6 +43,11 @@ class Register:
     aliases: tuple = ()
     aliases_at: tuple = ()         # other addresses that read/write the same register
     note: str = ""
+    recipe: str = ""               # its part in a settings download (maps/settings.py): "first",
+                                   # "limit", "lock", "author", "line", "no"; "" = an ordinary one
+    unlocked: int | None = None    # "lock"/"author": the code that opens the unit for writes
+    within: tuple = ()             # the limits (register names) a set point must lie within
+    st_field: str = ""             # its ST field name where the map name is no ST identifier
 
     @property
     def signed(self) -> bool:
@@ -233,7 +239,9 @@ def load(device: str, folder: str | None = None) -> Map:
                 unit=e.get("unit", ""), default=e.get("default", 0), meaning=e.get("meaning", ""),
                 source=e["source"], confidence=e.get("confidence", ""), words=e.get("words", 1),
                 codes=e.get("codes"), aliases=tuple(e.get("aliases", ())),
-                aliases_at=tuple(e.get("aliases_at", ())), note=e.get("note", "")))
+                aliases_at=tuple(e.get("aliases_at", ())), note=e.get("note", ""),
+                recipe=e.get("recipe", ""), unlocked=e.get("unlocked"),
+                within=tuple(e.get("within", ())), st_field=e.get("st_field", "")))
         except KeyError as err:
             raise MapError(f"{path}: register {e.get('name', e.get('addr'))} lacks {err}") from None
     m = Map(device=data.get("device", device), data=data, registers=regs)
@@ -262,6 +270,13 @@ def validate(m: Map) -> list[str]:
                 out.append(f"{r.name}: function {fc} not in the map's functions")
         if r.range is not None and r.range[0] > r.range[1]:
             out.append(f"{r.name}: empty range {r.range}")
+        if r.recipe not in RECIPE_PARTS:
+            out.append(f"{r.name}: recipe {r.recipe!r} is none of {RECIPE_PARTS}")
+        if (r.unlocked is None) != (r.recipe not in ("lock", "author")):
+            out.append(f"{r.name}: 'unlocked' goes with recipe lock/author, and only there")
+        for w in r.within:
+            if norm(w) not in m.by_name:
+                out.append(f"{r.name}: within names no register {w!r}")
         if r.words == 1 and r.range is not None and not r.range[0] <= r.default <= r.range[1]:
             out.append(f"{r.name}: default {r.default} outside {r.range}")
     return out

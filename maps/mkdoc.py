@@ -31,6 +31,8 @@ the function windows, and the manual's worked frames byte for byte.
 Who reads them:
 - the simulator (`tools/sim/modsim`, through [mbmap.py](mbmap.py)): no register table is left
   in its Python;
+- [settings.py](settings.py): the settings of each instrument (the recipe structures in ST, the
+  commissioning tool's restore and `backup --st`, the simulator's write checks);
 - the ST blocks' constants, checked by [tests/maps/check_st.py](../tests/maps/check_st.py) (rule below);
 - the tests (`ctest -L maps`, in tests/maps): the worked frames against the maps, this page against the JSON,
   the ST constants against the maps;
@@ -52,6 +54,15 @@ To add a register: one entry in the device's `registers`, then `python3 maps/mkd
 | `codes` | the table of an index-code register |
 | `range` | raw range accepted on a write (`null`: not checked, or a rule in `note`) |
 | `default` | raw; the factory value where the manual gives one (FDC: Example 1), else the simulator's choice; in brackets its engineering value with the other defaults (DP, INPT) |
+| `recipe` | its part in a settings download ([settings.py](settings.py)): `first` (input type, unit, decimal point: what scales the others, written first), `limit` (written before the set points inside it), `lock` (opened first, written last), `author` (the MT-S9's access level, raised and put back), `line` (sets the line: never in a recipe), `no` (a count, a command, factory data); none: an ordinary setting |
+| `unlocked` | `lock` / `author`: the code that opens the unit for writes |
+| `within` | the limits a set point must lie within (checked before a write) |
+| `st_field` | the ST field name where the register's name is no ST identifier (MV-D94 TYPE: INPUT_TYPE) |
+
+Each map's `settings_type` names its settings structure in ST. [settings.py](settings.py) derives
+from these keys and the grades which registers a recipe holds (RW, confidence H or M; not line,
+no, author), each field's ST type, scaling, range and write order, and writes the types
+(`st_src/MB_Settings.st`, `ctest -R settings.types` fails when stale).
 
 ## Constants in ST (`tests/maps/check_st.py`)
 A `VAR CONSTANT` (or `VAR_GLOBAL CONSTANT`) in `st_src/*.st` whose name starts with a device
