@@ -312,7 +312,9 @@ const char *mbfb_strerror(int code);
 
 /* ---- teardown (tests, program unload) ------------------------------------- */
 
-/** Stop every worker, close every port, free everything. Handles become invalid. */
+/** Stop every worker, close every port, free everything. Handles become invalid. Each
+ *  worker ends the attempt on the wire and starts no other. The library's destructor calls
+ *  it too (dlclose of the program that holds the shims, process exit): README "Lifetime". */
 void mbfb_shutdown(void);
 
 #ifdef __cplusplus

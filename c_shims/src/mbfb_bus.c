@@ -323,16 +323,24 @@ int mbfb_dev_open(int bus, int slave)
     return rc;
 }
 
-/* Stop every worker, then free buses, plans and devices. */
+/* Stop every worker, then free buses, plans and devices. All workers are told first and
+ * joined after, so the bound (the attempt on the wire, then at most MBFB_STOP_SLICE_US) is
+ * that of the slowest bus, not their sum. Each worker closes its port (and releases its
+ * direction line) before it returns. */
 void mbfb_shutdown(void)
 {
     pthread_mutex_lock(&mbfb_registry_lock);
     for (int i = 0; i < MBFB_MAX_BUSES; i++) {
         mbfb_bus_t *b = mbfb_buses[i];
+        if (b != NULL) {
+            __atomic_store_n(&b->stop, 1, __ATOMIC_RELEASE);
+            sem_post(&b->wake);
+        }
+    }
+    for (int i = 0; i < MBFB_MAX_BUSES; i++) {
+        mbfb_bus_t *b = mbfb_buses[i];
         if (b == NULL)
             continue;
-        __atomic_store_n(&b->stop, 1, __ATOMIC_RELEASE);
-        sem_post(&b->wake);
         pthread_join(b->worker, NULL);
         __atomic_store_n(&mbfb_buses[i], (mbfb_bus_t *)NULL, __ATOMIC_RELEASE);
         sem_destroy(&b->wake);
@@ -347,4 +355,16 @@ void mbfb_shutdown(void)
         __atomic_store_n(&mbfb_devs[i], (mbfb_dev_t *)NULL, __ATOMIC_RELEASE);
     }
     pthread_mutex_unlock(&mbfb_registry_lock);
+}
+
+/* The library's own end (README "Lifetime"): run when the object holding the shims is
+ * unloaded (dlclose of a PLC program's .so: OpenPLC Runtime v4's Stop) or the process
+ * exits. The workers' code lives in that object: they must have returned before it is
+ * unmapped, or they run on in freed pages (SIGSEGV). Joined here, they have: dlclose
+ * returns after this. The host has stopped calling into the library by then (Runtime
+ * v4 joins its scan threads before dlclose); one that calls exit() must not leave
+ * another thread in the blocks, as with any library's destructors. */
+__attribute__((destructor)) static void mbfb_unload(void)
+{
+    mbfb_shutdown();
 }

@@ -342,7 +342,9 @@ typedef struct mbfb_bus {
                                 kept by the worker (after each attempt, when it goes idle,
                                 and once when the window empties), so the scan reads it
                                 with one load (mbfb_dev_diag, mbfb_bus_diag)          */
-    int stop;                /* atomic: worker exits                              */
+    int stop;                /* atomic: set by mbfb_shutdown (the library's unload): the
+                                worker ends the attempt on the wire, starts no other,
+                                closes the port and returns (README "Lifetime")      */
     uint32_t post_seq;       /* atomic: next sequence number                      */
     sem_t wake;              /* posted by mbfb_post / mbfb_plan_set               */
     pthread_t worker;
@@ -375,6 +377,14 @@ void mbfb_plan_publish(mbfb_plan_t *p, int result, uint32_t gen, uint32_t read_m
 
 /* the worker (mbfb_worker.c) */
 void *mbfb_worker_main(void *arg);
+
+/** The bus is being shut down (mbfb_shutdown, the library's unload): no new attempt. */
+static inline int mbfb_stopping(const mbfb_bus_t *bus)
+{
+    return __atomic_load_n(&bus->stop, __ATOMIC_ACQUIRE);
+}
+/* Long waits of the worker outside an attempt look at the stop flag this often. */
+#define MBFB_STOP_SLICE_US 20000
 
 /* diag helpers (worker writes, scan reads, all with __atomic); every change bumps
  * the device's diag_seq (release) after the field */

@@ -60,14 +60,20 @@ int mbfb_serial_quiet(mbfb_bus_t *bus, int silence_us, int limit_us)
     for (;;) {
         uint8_t junk[256];
         int64_t end = bus->quiet_from_us + silence_us;
+        int64_t wait;
         ssize_t n;
         int rc;
 
         if (end > give_up)
             end = give_up; /* babbling line: send anyway, the reply check decides */
-        rc = mbfb_fd_wait_input(bus->fd, end - mbfb_now_us());
+        /* a long silence (the settle after a failed attempt) ends early when the bus
+         * stops: the caller then sends nothing (README "Lifetime") */
+        wait = end - mbfb_now_us();
+        rc = mbfb_fd_wait_input(bus->fd, wait > MBFB_STOP_SLICE_US ? MBFB_STOP_SLICE_US : wait);
+        if (rc == 0 && wait > MBFB_STOP_SLICE_US && !mbfb_stopping(bus))
+            continue; /* not silent long enough yet */
         if (rc <= 0)
-            return rc < 0 ? -MBFB_E_PORTLOST : stray; /* silent until `end` */
+            return rc < 0 ? -MBFB_E_PORTLOST : stray; /* silent until `end` (or stopping) */
         /* readable: a tty with VMIN = VTIME = 0 returns 0 only when it is gone */
         n = read(bus->fd, junk, sizeof junk);
         if (n > 0) {

@@ -199,6 +199,8 @@ static int send_and_check(mbfb_bus_t *bus, mbfb_dev_t *dev, int fc, int addr, in
                                                      mbfb_reply_len(req));
     if (wait_quiet(bus, dev->slave) < 0)
         return -MBFB_E_PORTLOST;
+    if (mbfb_stopping(bus))
+        return MBFB_E_CANCELLED; /* shutting down: no new attempt (README "Lifetime") */
     t0 = mbfb_now_us();
     if (bus->be->send(bus, req, len) < 0)
         return -MBFB_E_PORTLOST;
@@ -514,6 +516,8 @@ static int run_attempts(mbfb_bus_t *bus, request_t *request)
     mbfb_range_t r;
 
     for (;;) {
+        if (mbfb_stopping(bus)) /* shutting down: the attempt on the wire was the last */
+            return request->write_sent ? MBFB_E_UNCONFIRMED : MBFB_E_CANCELLED;
         if (failures >= request->budget)
             return unknown ? MBFB_E_UNCONFIRMED : err;
         if (!dev->in_step) { /* only a resync read may go */
@@ -711,6 +715,8 @@ static int device_request(mbfb_bus_t *bus, request_t *request)
         set_error(dev, MBFB_E_OFFLINE);
         return MBFB_E_OFFLINE;
     }
+    if (mbfb_stopping(bus))
+        return MBFB_E_CANCELLED; /* shutting down: no port opened, nothing sent */
     if (bus->fd < 0 && (rc = bus->be->open(bus)) < 0) {
         /* plans try again only after a probe interval: no spinning on open() */
         int64_t now = mbfb_now_us();
