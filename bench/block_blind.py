@@ -3,8 +3,8 @@
     .venv/bin/python bench/block_blind.py [REPEATS] [--before REF] [--delays 100,200,...]
                                           [--trace] [--from OUTPUT]
 
-Not a test (no ctest registration): it prints figures (bench/README.md, "Blind time after a
-late reply, block level"). The block level of bench/late_blind.sh: bench/block_blind.st (its
+Not a test (no ctest registration): it prints figures (bench/README.md, "Blind time after
+one late reply, block level"). The block level of bench/late_blind.sh: bench/block_blind.st (its
 header says what it measures) is compiled twice, with st_src/ and c_shims/ of BEFORE (REF,
 default 99d66d9^: the last commit before the back-in-step work, taken with `git archive` into a
 temp dir) and of the work tree (AFTER), each with iec2c (OPENPLC_HOME's, -f -l -p -r -R -a as

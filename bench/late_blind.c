@@ -1,5 +1,5 @@
 /*
- * late_blind.c - blind time after ONE late reply, at the shim level (issue 18).
+ * late_blind.c - blind time after ONE late reply, at the shim level.
  *
  * One device (the scripted peer of tests/shims on a pty, at 9600 8N2, derived response
  * timeout, default retries) is read every PERIOD_MS: FC03 of one register at 0, one

@@ -1,4 +1,4 @@
-"""Scan cost of a device block: instructions per scan under callgrind (issue 10, item 4).
+"""Scan cost of a device block: instructions per scan under callgrind.
 
     .venv/bin/python bench/scan_cost.py                                  # the working tree, shims -O0 and -O2
     .venv/bin/python bench/scan_cost.py --variant before=140d186 --variant now=worktree

@@ -1,4 +1,4 @@
-"""Wire pace: how much of a paced RS-485 line each kind of master uses (issue 10, item 5).
+"""Wire pace: how much of a paced RS-485 line each kind of master uses.
 
     .venv/bin/python bench/wire_pace.py                      # before (pinned commit) and after (working tree)
     .venv/bin/python bench/wire_pace.py --variant now=worktree --runs 1 --seconds 3   # quick look

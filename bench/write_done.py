@@ -1,4 +1,4 @@
-"""Write Done: does a write's Done come in the first scan after its reply? (issue 10, Done when)
+"""Write Done: does a write's Done come in the first scan after its reply?
 
     .venv/bin/python bench/write_done.py                  # 4 cases x 30 s: about 4.5 min here
     .venv/bin/python bench/write_done.py --seconds 10 --intervals 20

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""mkpackage.py - the v4 library folder next to the .stlib (v4/README.md, "Package").
+"""mkpackage.py - the v4 library folder next to the .stlib (v4/README.md, "Build").
 
   mkpackage.py --stlib mbfb.stlib --dir OUT/mbfb --version V --header mbfb_strucpp.hpp
                [--libmodbus LIBMODBUS_SRC_TREE] SHIM_FILES...

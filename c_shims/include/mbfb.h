@@ -74,7 +74,8 @@ extern "C" {
                                    libgpiod.so.2) is not installed; nothing was sent   */
 #define MBFB_E_EXCEPTION_BASE 128 /* + Modbus exception code                          */
 /* Function-block input errors (st_src/): found before anything is sent.              */
-#define MBFB_E_BAD_SLAVE     200 /* SlaveId 0 for a read/monitoring block, or > 247       */
+#define MBFB_E_BAD_SLAVE     200 /* SlaveId 0 for a read/monitoring block, or refused by
+                                     mbfb_dev_check (> 247; > 255 on Modbus TCP)        */
 #define MBFB_E_NO_PORT_NAME  201 /* Port empty or only spaces                             */
 #define MBFB_E_RANGE         202 /* set point / value out of its range (LOLT..HILT,
                                      SP1L..SP1H, alarm +-1000 counts, MV1 0..100 %,
@@ -86,13 +87,17 @@ extern "C" {
                                      an MT-S9 set-up register above the Author level    */
 #define MBFB_E_NOT_READY     205 /* the limits/scaling the check needs are not known, or
                                      stale (no valid refresh yet)                       */
-#define MBFB_E_BAD_REQUEST   206 /* register request invalid: function not 3/4/6/16, count
-                                     0 or above 125 (read) / 123 (FC16), address + count
-                                     above 65536                                        */
-#define MBFB_E_BAD_LINE      207 /* line settings invalid: unknown Parity or Framing, TCP
-                                     framing on a serial port, ASCII/NOCRC on tcp://, data
-                                     bits not 8 (7 only with ASCII), stop bits not 1/2,
-                                     baud <= 0, timeout < 0                             */
+#define MBFB_E_BAD_REQUEST   206 /* register request invalid: a command's mbfb_post refused
+                                     with MBFB_E_INVAL (function not 3/4/6/16, count 0 or
+                                     above 125 (read) / 123 (FC16), address + count above
+                                     65536, a read from slave 0)                        */
+#define MBFB_E_BAD_LINE      207 /* line settings invalid: mbfb_bus_open refused them with
+                                     MBFB_E_INVAL or MBFB_E_BAUD (unknown Parity, Framing or
+                                     Direction, TCP framing on a serial port, ASCII/NOCRC on
+                                     tcp://, data bits not 8 (7 only with ASCII), stop bits
+                                     not 1/2, baud < 0 or above 4000000, timeout outside
+                                     0..60000 ms, Retries above 20, a direction delay above
+                                     100 ms, GPIO without its chip or line)             */
 #define MBFB_E_NOT_ENABLED   208 /* command on a device block whose Enable is FALSE     */
 
 /* ---- RS-485 direction control (README "Direction control") ------------------
@@ -157,6 +162,11 @@ int mbfb_bus_open_line(const char *port, int port_len, int baud, int parity, int
 /** Device handle for slave id `slave` on `bus` (0 = broadcast: writes only).
  *  Returns a device handle >= 0 or a negative error (-MBFB_E_INVAL for slave > 247). */
 int mbfb_dev_open(int bus, int slave);
+
+/** 0 if `slave` can be a device on a bus of `framing` (MBFB_FRAMING_*): 1..247, 0 =
+ *  broadcast, up to 255 on Modbus TCP; else -MBFB_E_INVAL. mbfb_dev_open's check, callable
+ *  before a bus is opened (a block refuses its SlaveId without claiming the port). */
+int mbfb_dev_check(int framing, int slave);
 
 /* ---- scan side: never block, never allocate ------------------------------- */
 

@@ -78,16 +78,23 @@ static int normalise(mbfb_bus_config_t *c)
     }
     if (c->direction == MBFB_DIR_NONE)
         c->dir_active_low = c->dir_before_us = c->dir_after_us = 0;
+    if (c->baud < 0)
+        return MBFB_E_INVAL;
+    if (c->parity == 'n' || c->parity == 'e' || c->parity == 'o')
+        c->parity = (char)(c->parity - 'a' + 'A');
     if (c->framing == MBFB_FRAMING_TCP) { /* line settings unused; baud only for timing */
+        /* unused, but a setting given (not 0) must still be one a line can have */
+        if ((c->parity != 0 && c->parity != 'N' && c->parity != 'E' && c->parity != 'O') ||
+            (c->stop_bits != 0 && c->stop_bits != 1 && c->stop_bits != 2) ||
+            (c->data_bits != 0 && c->data_bits != 8))
+            return MBFB_E_INVAL;
         c->baud = c->baud > 0 ? c->baud : 9600;
         c->parity = 'N';
         c->data_bits = 8;
         c->stop_bits = 1;
         return 0;
     }
-    if (c->parity == 'n' || c->parity == 'e' || c->parity == 'o')
-        c->parity = (char)(c->parity - 'a' + 'A');
-    if (c->baud <= 0 || (c->parity != 'N' && c->parity != 'E' && c->parity != 'O') ||
+    if (c->baud == 0 || (c->parity != 'N' && c->parity != 'E' && c->parity != 'O') ||
         (c->stop_bits != 1 && c->stop_bits != 2) ||
         (c->data_bits != 8 && !(c->data_bits == 7 && c->framing == MBFB_FRAMING_ASCII)))
         return MBFB_E_INVAL; /* RTU is binary: 8 data bits */
@@ -288,6 +295,14 @@ int mbfb_bus_open_args(const char *port, int port_len, int baud, int parity, int
                               response_timeout_ms, retries, MBFB_DIR_NONE, 0, 0, 0, "", 0, 0);
 }
 
+/* Modbus serial: 1..247, 0 = broadcast; TCP unit identifiers go to 255. */
+int mbfb_dev_check(int framing, int slave)
+{
+    return slave < 0 || slave > (framing == MBFB_FRAMING_TCP ? MBFB_MAX_UNIT : MBFB_MAX_SLAVE)
+               ? -MBFB_E_INVAL
+               : 0;
+}
+
 /* Device handle for (bus, slave): found or allocated under the registry lock. */
 int mbfb_dev_open(int bus, int slave)
 {
@@ -297,8 +312,7 @@ int mbfb_dev_open(int bus, int slave)
     if (bus < 0 || bus >= MBFB_MAX_BUSES ||
         (b = __atomic_load_n(&mbfb_buses[bus], __ATOMIC_ACQUIRE)) == NULL)
         return -MBFB_E_BADHANDLE;
-    /* Modbus serial: 1..247, 0 = broadcast; TCP unit identifiers go to 255 */
-    if (slave < 0 || slave > (b->cfg.framing == MBFB_FRAMING_TCP ? MBFB_MAX_UNIT : MBFB_MAX_SLAVE))
+    if (mbfb_dev_check(b->cfg.framing, slave) != 0)
         return -MBFB_E_INVAL;
     pthread_mutex_lock(&mbfb_registry_lock);
     for (int i = 0; i < MBFB_MAX_DEVICES; i++) {

@@ -256,6 +256,29 @@ static void bad_args(void)
     CHECK_EQ(mbfb_bus_open(&c), -MBFB_E_INVAL);
     c = t_cfg("", 9600, MBFB_FRAMING_RTU, 0, -1);
     CHECK_EQ(mbfb_bus_open(&c), -MBFB_E_INVAL);
+    /* Modbus TCP uses no serial settings, but one given must be one a line can have */
+    c = t_cfg("tcp://127.0.0.1:1502", -1, MBFB_FRAMING_TCP, 0, -1);
+    CHECK_EQ(mbfb_bus_open(&c), -MBFB_E_INVAL);
+    c = t_cfg("tcp://127.0.0.1:1502", 0, MBFB_FRAMING_TCP, 0, -1);
+    c.data_bits = 7;
+    CHECK_EQ(mbfb_bus_open(&c), -MBFB_E_INVAL);
+    c.data_bits = 0;
+    c.stop_bits = 3;
+    CHECK_EQ(mbfb_bus_open(&c), -MBFB_E_INVAL);
+    c.stop_bits = 0;
+    c.parity = 'X';
+    CHECK_EQ(mbfb_bus_open(&c), -MBFB_E_INVAL);
+    c = t_cfg(P.link, 9600, MBFB_FRAMING_RTU, 0, 21); /* more than 20 retries */
+    CHECK_EQ(mbfb_bus_open(&c), -MBFB_E_INVAL);
+    c = t_cfg(P.link, 9600, MBFB_FRAMING_RTU, 60001, -1);
+    CHECK_EQ(mbfb_bus_open(&c), -MBFB_E_INVAL);
+    /* the slave check, with or without a bus: 1..247 (0 broadcast), 255 on Modbus TCP */
+    CHECK_EQ(mbfb_dev_check(MBFB_FRAMING_RTU, 248), -MBFB_E_INVAL);
+    CHECK_EQ(mbfb_dev_check(MBFB_FRAMING_ASCII, -1), -MBFB_E_INVAL);
+    CHECK_EQ(mbfb_dev_check(MBFB_FRAMING_RTU, 247), 0);
+    CHECK_EQ(mbfb_dev_check(MBFB_FRAMING_RTU, 0), 0);
+    CHECK_EQ(mbfb_dev_check(MBFB_FRAMING_TCP, 255), 0);
+    CHECK_EQ(mbfb_dev_check(MBFB_FRAMING_TCP, 256), -MBFB_E_INVAL);
     CHECK_EQ(mbfb_bus_open(NULL), -MBFB_E_INVAL);
     CHECK_EQ(mbfb_dev_open(bus, 248), -MBFB_E_INVAL);
     CHECK_EQ(mbfb_dev_open(bus, -1), -MBFB_E_INVAL);
