@@ -173,6 +173,12 @@ class Daemon:
                 raise RuntimeError(f"plc_main: no socket after 15 s:\n{self.log_text()[-3000:]}")
             time.sleep(0.05)
 
+    def exit_text(self):
+        code = self.proc.poll()
+        if code is None:
+            return "plc_main is running"
+        return f"plc_main exited {code}" + (f" (signal {-code})" if code < 0 else "")
+
     def log_text(self):
         with open(self.log_path, errors="replace") as f:
             return f.read()
@@ -182,7 +188,10 @@ class Daemon:
         s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
         s.settimeout(timeout)
         try:
-            s.connect(self.sock_path)
+            try:
+                s.connect(self.sock_path)
+            except OSError as e:
+                raise RuntimeError(f"{cmd}: {e}; {self.exit_text()}") from None
             s.sendall((cmd + "\n").encode())
             buf = b""
             while not buf.endswith(b"\n"):
