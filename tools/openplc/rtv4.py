@@ -19,12 +19,14 @@ import shutil
 import signal
 import socket
 import subprocess
+import threading
 import time
 
 ROOT = os.path.abspath(os.path.join(os.path.dirname(__file__), "..", ".."))
 V4 = os.path.join(ROOT, "v4")
 DEFAULT_HOME = "/opt/openplc-runtime"
 SOCKET_NAME = "plc_runtime.socket"
+LOG_SOCKET_NAME = "log_runtime.socket"   # the daemon's log goes there (the web server listens)
 
 
 def runtime_v4_home():
@@ -91,15 +93,38 @@ def build_plc_main(home, out_dir):
 
 def program_build(strucpp_dir, package_dir, sources, gen_dir):
     """core/generated/ for `sources` (ST), as the Editor writes it (v4/program-build.mjs), with
-    the package's library folder in core/generated/libraries/."""
+    the package's library folder in core/generated/libraries/ (package_dir None: no library)."""
     shutil.rmtree(gen_dir, ignore_errors=True)
+    lib = ["-L", package_dir] if package_dir else []
     r = subprocess.run(["node", os.path.join(V4, "program-build.mjs"), "--strucpp", strucpp_dir,
-                        "-L", package_dir, "-o", gen_dir, *sources], capture_output=True, text=True)
+                        *lib, "-o", gen_dir, *sources], capture_output=True, text=True)
     if r.returncode:
         raise RuntimeError(f"program-build.mjs failed:\n{r.stdout}{r.stderr}")
-    for lib in glob.glob(os.path.join(package_dir, "*", "library.properties")):
-        d = os.path.dirname(lib)
+    for props in glob.glob(os.path.join(package_dir, "*", "library.properties")) if package_dir else []:
+        d = os.path.dirname(props)
         shutil.copytree(d, os.path.join(gen_dir, "libraries", os.path.basename(d)))
+
+
+def plugin_venv(home, plugin, venvs_dir, fetch=True):
+    """The virtual environment of one of the runtime's Python plugins, as its
+    scripts/manage_plugin_venvs.sh makes it (the plugin's requirements.txt from the package
+    registry), in venvs_dir/<plugin>; made once (fetch=False: must exist). Returns its path."""
+    venv = os.path.abspath(os.path.join(venvs_dir, plugin))
+    req = os.path.join(home, "core/src/drivers/plugins/python", plugin, "requirements.txt")
+    os.makedirs(venvs_dir, exist_ok=True)
+    with _locked(os.path.join(venvs_dir, f".{plugin}.lock")):
+        if not os.path.exists(os.path.join(venv, ".mbfb-done")):
+            if not fetch:
+                raise RuntimeError(f"{venv} not made: make it where the package registry is reachable "
+                                   "(bench/compare.py does, outside the network namespace)")
+            shutil.rmtree(venv, ignore_errors=True)
+            for cmd in (["python3", "-m", "venv", venv],
+                        [os.path.join(venv, "bin", "pip"), "install", "-q", "-r", req]):
+                r = subprocess.run(cmd, capture_output=True, text=True)
+                if r.returncode:
+                    raise RuntimeError(f"{' '.join(cmd)}:\n{r.stdout[-2000:]}{r.stderr[-2000:]}")
+            open(os.path.join(venv, ".mbfb-done"), "w").close()
+    return venv
 
 
 class RuntimeRoot:
@@ -122,6 +147,12 @@ class RuntimeRoot:
         if not os.path.exists(conf):
             open(conf, "w").close()
         self.generated = os.path.join(path, "core", "generated")
+
+    def plugin(self, name, path, config, venv=""):
+        """Enable one of the runtime's plugins (path relative to OPENPLC_V4_HOME) in
+        plugins.conf (name,path,enabled,type,config,venv; type 0 = Python)."""
+        with open(os.path.join(self.dir, "plugins.conf"), "a") as f:
+            f.write(f"{name},{os.path.join(self.home, path)},1,0,{config},{venv}\n")
 
     def compile(self, jobs=2):
         """Build core/generated/ into build/new_libplc.so as compile.sh does: make with the
@@ -155,6 +186,13 @@ class Daemon:
         self.sock_path = os.path.join(root.rundir, SOCKET_NAME)
         for f in os.listdir(root.rundir):
             os.unlink(os.path.join(root.rundir, f))
+        # a listener on the log socket, as the runtime's web server is: without one the daemon
+        # opens and closes a socket every second trying to connect (its fd count would flicker)
+        self.log_sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        self.log_sock.bind(os.path.join(root.rundir, LOG_SOCKET_NAME))
+        self.log_sock.listen(4)
+        self.log_lines = []
+        threading.Thread(target=self._log_sink, daemon=True).start()
         self.log_path = os.path.join(root.dir, "plc_main.log")
         self.log = open(self.log_path, "wb")
         script = ('mount -t tmpfs -o size=1m,mode=755 mbfb-run /run && mkdir /run/runtime && '
@@ -172,6 +210,22 @@ class Daemon:
                 self.stop()
                 raise RuntimeError(f"plc_main: no socket after 15 s:\n{self.log_text()[-3000:]}")
             time.sleep(0.05)
+
+    def _log_sink(self):
+        while True:
+            try:
+                conn, _ = self.log_sock.accept()
+            except OSError:
+                return
+            with conn:
+                while True:
+                    try:
+                        data = conn.recv(65536)
+                    except OSError:
+                        break
+                    if not data:
+                        break
+                    self.log_lines.append(data)
 
     def exit_text(self):
         code = self.proc.poll()
@@ -232,7 +286,15 @@ class Daemon:
         return len(os.listdir(f"/proc/{self.pid}/task"))
 
     def fds(self):
-        return len(os.listdir(f"/proc/{self.pid}/fd"))
+        """The daemon's open files: sorted readlink of /proc/PID/fd/*."""
+        d = f"/proc/{self.pid}/fd"
+        out = []
+        for n in os.listdir(d):
+            try:
+                out.append(os.readlink(os.path.join(d, n)))
+            except OSError:
+                pass
+        return sorted(out)
 
     def mapped(self, name):
         """True when a file named `name` is mapped into the daemon."""
@@ -249,6 +311,7 @@ class Daemon:
                 self.proc.kill()
                 self.proc.wait()
         self.log.close()
+        self.log_sock.close()
         return self.proc.returncode
 
 
