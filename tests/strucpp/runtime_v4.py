@@ -136,7 +136,7 @@ def run(exe, home, v4, tmp):
     with Simulator(oplc.EXAMPLE_DEVICES, link=bus, time_scale=30.0, seed=1) as sim:
         daemon = rtv4.Daemon(exe, rt)
         try:
-            cycles(daemon, sim, rt, lib, (z2sv, z2valid, z2req))
+            cycles(daemon, sim, lib, (z2sv, z2valid, z2req))
             rebuilt(daemon, sim, rt, v4, st1, tmp, lib)
         except (RuntimeError, TimeoutError) as e:
             fail(str(e), daemon)
@@ -175,7 +175,8 @@ def running(daemon, sim, leaves, setpoint, frames):
 
 
 def stopped(daemon, sim, lib):
-    """STOP -> STOPPED; then QUIET s without a frame; PING; returns (threads, fds)."""
+    """STOP -> STOPPED; then QUIET s without a frame; PING; the .so unmapped. Returns (s from
+    STOP to STOPPED, threads, fds)."""
     reply = daemon.command("STOP")
     if reply != "STOP:OK":
         fail(f"STOP answered {reply}", daemon)
@@ -196,7 +197,7 @@ def stopped(daemon, sim, lib):
     return t_stopped - t_cmd, daemon.threads(), daemon.fds()
 
 
-def cycles(daemon, sim, rt, lib, leaves):
+def cycles(daemon, sim, lib, leaves):
     base = None
     for i in range(CYCLES):
         if i:
@@ -222,7 +223,7 @@ def cycles(daemon, sim, rt, lib, leaves):
               f"threads {threads}, fds {len(fds)}, {lib} unmapped")
 
 
-def rate(sim, daemon):
+def rate(sim):
     """rx frames per second over RATE_WINDOW once all zones are valid."""
     sim.log(clear=True)
     a = sim.ctl("stats")["line"]["rx_frames"]
@@ -240,7 +241,7 @@ def rebuilt(daemon, sim, rt, v4, st1, tmp, lib1):
     daemon.wait_status("RUNNING", 30)
     wait(lambda: len([f for f in sim.log(clear=True) if f["dir"] == "rx"]) > 0, 15, "no traffic", daemon)
     time.sleep(2.0)
-    r1 = rate(sim, daemon)
+    r1 = rate(sim)
     bad0 = sim.ctl("stats")["line"]["bad_frames"]
     st2 = os.path.join(tmp, "heat_treat_st_2.st")
     text = open(st1).read()
@@ -263,7 +264,7 @@ def rebuilt(daemon, sim, rt, v4, st1, tmp, lib1):
         fail(f"mapped: {lib2} {daemon.mapped(lib2)}, {lib1} {daemon.mapped(lib1)}", daemon)
     wait(lambda: len([f for f in sim.log(clear=True) if f["dir"] == "rx"]) > 0, 15, "no traffic", daemon)
     time.sleep(2.0)
-    r2 = rate(sim, daemon)
+    r2 = rate(sim)
     bad = sim.ctl("stats")["line"]["bad_frames"] - bad0
     if r2 > 1.5 * r1 or bad:
         fail(f"two masters? {r2:.1f} requests/s with {lib2} against {r1:.1f} with {lib1}, "
