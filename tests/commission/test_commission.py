@@ -242,3 +242,116 @@ def test_restore_onto_pymodbus_read_back_by_pymodbus(tmp_path):
     finally:
         peer.terminate()
         peer.wait(timeout=10)
+
+
+sys.path.insert(0, os.path.join(ROOT, "maps"))
+import settings  # noqa: E402  (the settings description: maps/settings.py)
+
+
+def recipe_fields(data):
+    """field -> raw of a backup's recipe fields (maps/settings.py)."""
+    kind = data["kind"]
+    raw = {n: e["raw"] for n, e in data["registers"].items()}
+    return {s.field: raw[s.reg.name] for s in settings.fields(kind)}
+
+
+@pytest.mark.parametrize("source,target,opts", [
+    ("mvd94:1:SV=120.0,DP=1,TYPE=J,HILT=300.0,A1SP=5.0,SPOF=-1.5,PB=12.5,LOCK=0101", "mvd94:2", ()),
+    ("fdc100:1:INPT=12,DP=2,SP1H=400.0,SP1=150.0,PB=20.0,ALHY=2.0", "fdc100:2", ("--format", "8N2")),
+    ("mts9:1:Decimal Set=2", "mts9:2", ())])
+def test_backup_st_is_a_recipe_that_restores_the_backup(tmp_path, source, target, opts):
+    """backup --st prints the settings structure's initial value (a declaration, fields in
+    alphabetical order, every field of the type); restore of it makes the target hold every
+    recipe field of the source, each read back; the scaling (DP, INPT) written before the
+    values it scales; a second restore writes nothing."""
+    rec, src, dst = tmp_path / "r.st", tmp_path / "src.json", tmp_path / "dst.json"
+    with Simulator([source, target], baud=9600, fmt="8N2") as sim:
+        r = tool("backup", sim.port, 1, *opts, "--st", "-o", src)
+        assert r.returncode == 0, r.stderr
+        rec.write_text(r.stdout)
+        data = json.loads(src.read_text())
+        kind = data["kind"]
+        decl = r.stdout[r.stdout.index("*)") + 2:].strip()
+        assert decl.startswith(f"{kind}_1_recipe : {settings.type_name(kind)} :=") and \
+            decl.endswith(");"), decl
+        body = decl.split(":=", 1)[1]
+        names = [p.split(":=")[0].strip(" (\n") for p in body.split(",")]
+        assert names == sorted(names) == sorted(s.field for s in settings.fields(kind)), names
+        parsed = settings.parse_initial(kind, r.stdout)
+        assert settings.to_raw(kind, parsed) == recipe_fields(data)
+        assert tool("backup", sim.port, 2, *opts, "-o", dst).returncode == 0
+        assert recipe_fields(json.loads(dst.read_text())) != recipe_fields(data)
+        sim.control({"op": "log", "clear": True})
+        dry = tool("restore", rec, sim.port, 2, *opts)
+        assert dry.returncode == 1 and "dry run" in dry.stdout and writes(sim) == []
+        done = tool("restore", rec, sim.port, 2, *opts, "--yes")
+        assert done.returncode == 0, done.stdout + done.stderr
+        order = [int(f["hex"].split()[3], 16) for f in writes(sim)]
+        first = [s.reg.addr for s in settings.fields(kind) if s.part == "first"]
+        access = settings.access_register(kind)[0].addr
+        scaling = [i for i, a in enumerate(order) if a in first]
+        values = [i for i, a in enumerate(order) if a not in first and a != access]
+        assert scaling and (not values or max(scaling) < min(values)), order
+        assert tool("backup", sim.port, 2, *opts, "-o", dst).returncode == 0
+        assert recipe_fields(json.loads(dst.read_text())) == recipe_fields(data)
+        again = tool("restore", rec, sim.port, 2, *opts, "--yes")
+        assert again.returncode == 0 and "0 setting(s) differ" in again.stdout, again.stdout
+
+
+def test_st_recipe_refused_with_one_line_before_any_write(tmp_path):
+    """A field out of its range (named), a field the type does not have, another model's
+    settings: one line, nothing written; a bare initial value takes the device's model."""
+    with Simulator(["mvd94:1:SV=80.0,DP=1,HILT=300.0", "fdc100:2"], baud=9600, fmt="8N2") as sim:
+        r = tool("backup", sim.port, 1, "--st")
+        assert r.returncode == 0
+        text = r.stdout
+        sim.control({"op": "log", "clear": True})
+        cases = [(text.replace("SV := 80.0", "SV := 400.0"), 6, "SV: 400.0 outside LOLT..HILT"),
+                 (text.replace("SV := 80.0", "SV := 1000.0"), 6, "SV: 1000.0 outside -199.9..999.9"),
+                 (text.replace("CT := 20", "CT := 101"), 6, "CT: 101 outside 0..100"),
+                 (text.replace("CT := 20", "CYCLE := 20"), 6, "CYCLE: no field of MVD94_SETTINGS"),
+                 (text.replace("SV := 80.0", "SV := hot"), 6, "SV: hot is no number")]
+        for i, (bad, status, why) in enumerate(cases):
+            f = tmp_path / f"bad{i}.st"
+            f.write_text(bad)
+            r = tool("restore", f, sim.port, 1, "--yes")
+            assert r.returncode == status and why in r.stderr, (why, r.stderr)
+            assert len(r.stderr.strip().splitlines()) == 1 and "nothing written" in r.stderr
+        good = tmp_path / "good.st"
+        good.write_text(text)
+        r = tool("restore", good, sim.port, 2, "--yes", "--format", "8N2")
+        assert r.returncode == 4 and "MVD94_SETTINGS" in r.stderr, r.stderr
+        bare = tmp_path / "bare.st"                      # only the initial value: the device's
+        bare.write_text(text.split(":=", 1)[1].replace("SV := 80.0", "SV := 90.0"))
+        assert writes(sim) == []
+        r = tool("restore", bare, sim.port, 1, "--yes")
+        assert r.returncode == 0 and "1 setting(s) differ" in r.stdout, r.stdout + r.stderr
+        assert sim.control({"op": "get", "addr": 1, "reg": "SV"})["eng"] == 90.0
+
+
+def test_st_recipe_onto_pymodbus_read_back_by_pymodbus(tmp_path):
+    """backup --st from the simulator, restored onto pymodbus holding an MV-D94's map (RTU over
+    TCP), every recipe field read back with a pymodbus client."""
+    from pymodbus import FramerType
+    from pymodbus.client import ModbusTcpClient
+    rec, src = tmp_path / "r.st", tmp_path / "src.json"
+    with Simulator(["mvd94:1:SV=150.0,DP=1,A1SP=2.5,PB=12.0,HYST=0.5"], baud=9600, fmt="8N2") as sim:
+        r = tool("backup", sim.port, 1, "--st", "-o", src)
+        assert r.returncode == 0, r.stderr
+        rec.write_text(r.stdout)
+    want = recipe_fields(json.loads(src.read_text()))
+    peer = subprocess.Popen([sys.executable, PEER, "rtu-tcp", "mvd94"], stdout=subprocess.PIPE,
+                            text=True)
+    try:
+        port = int(peer.stdout.readline().split()[1])
+        r = tool("restore", rec, f"tcp://127.0.0.1:{port}", 1, "--yes")
+        assert r.returncode == 0, r.stdout + r.stderr
+        client = ModbusTcpClient("127.0.0.1", port=port, framer=FramerType.RTU)
+        assert client.connect()
+        for s in settings.fields("mvd94"):
+            got = client.read_holding_registers(s.reg.addr, count=1, slave=1)
+            assert not got.isError() and got.registers[0] == want[s.field] & 0xFFFF, s.field
+        client.close()
+    finally:
+        peer.terminate()
+        peer.wait(timeout=10)
