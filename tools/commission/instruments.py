@@ -1,6 +1,6 @@
 """What the commissioning tool knows of the three instruments, all of it from maps/*.json: how
 to recognise one on a line, which registers are its settings, in which order they are restored,
-and the ST declaration that drives it.
+and its settings as an ST recipe (the declarations of a scan: oneline.py).
 
 Identification never guesses: each check reads registers the map defines and states them.
   FDC-100   ADDR (39) = the address, BAUD (40) = the line's baud code, PROG (71) = a model of
@@ -110,22 +110,6 @@ def describe(kind: str, reg, raw: int, state: dict) -> dict:
         except (KeyError, mbmap.MapError):
             entry["value"] = raw
     return entry
-
-
-def st_declaration(found: Found, port: str, baud: int, fmt: str) -> str:
-    """The ST to paste for an instrument: its block and, where not the block's default, MB_LINE."""
-    data, parity, stop = int(fmt[0]), fmt[1], int(fmt[2])
-    name = f"{found.kind}_{found.address}"
-    fields = [f"Baud := {baud}"]
-    if data != 8:
-        fields.append(f"DataBits := {data}")
-    if found.framing != "rtu":
-        fields.append(f"Framing := '{found.framing.upper()}'")
-    fields += [f"Parity := '{parity}'", f"StopBits := {stop}"]
-    return (f"VAR\n  {name}_line : MB_LINE := ({', '.join(fields)});\n"
-            f"  {name} : {BLOCKS[found.kind]};\nEND_VAR\n"
-            f"{name}(Enable := TRUE, Port := '{port}', SlaveId := {found.address}, "
-            f"Line := {name}_line);")
 
 
 def st_recipe(data: dict, name: str | None = None) -> str:

@@ -22,6 +22,7 @@ import sys
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import instruments as ins  # noqa: E402
 import lineops  # noqa: E402
+import oneline  # noqa: E402
 from shims import Shims, ShimsError  # noqa: E402
 
 EXIT_OK, EXIT_DIFFERS, EXIT_USAGE, EXIT_PORT, EXIT_DEVICE, EXIT_PARTIAL, EXIT_FILE, EXIT_LIB = \
@@ -54,6 +55,10 @@ def parse(argv):
     s.add_argument("--address", default="1-247", help="N, N-M or a comma list (default 1-247)")
     s.add_argument("--full", action="store_true", help="after the factory settings, every setting")
     s.add_argument("--no-progress", action="store_true", help="no progress bar")
+    s.add_argument("--settle", action="store_true",
+                   help="after each silent address, keep the line silent for one more reply "
+                        "timeout (the shims' settle, as the blocks do): for a line with a device "
+                        "that answers late; about twice the time")
     b = sub.add_parser("backup", help="save every readable setting of one instrument")
     b.add_argument("port")
     b.add_argument("address", type=int)
@@ -149,18 +154,14 @@ def cmd_scan(args, lib) -> int:
 
 
 def print_found(args, found) -> None:
-    """The table and, per instrument, its ST declaration."""
+    """The table, then one MB_LINE with the blocks that use it (or what to change first)."""
     if not found:
         return
     print(f"\n{'address':>7}  {'model':<10} {'framing':<6} {'baud':>6}  format  identified by")
     for (baud, fmt, framing), f in found:
         print(f"{f.address:>7}  {f.model:<10} {f.framing.upper():<6} {baud:>6}  {f.format or fmt:<6}  "
               + "; ".join(f.evidence))
-    for (baud, fmt, framing), f in found:
-        if f.kind == "unknown":
-            continue
-        print(f"\n(* {f.model} at {f.address} *)\n" +
-              ins.st_declaration(f, args.port, baud, f.format or fmt))
+    print(oneline.declarations(found, args.port))
 
 
 def cmd_backup(args, lib) -> int:
