@@ -322,9 +322,11 @@ def test_st_recipe_refused_with_one_line_before_any_write(tmp_path):
     """A field out of its range (named), a field the type does not have, another model's
     settings: one line, nothing written; a bare initial value takes the device's model."""
     with Simulator(["mvd94:1:SV=80.0,DP=1,HILT=300.0", "fdc100:2"], baud=9600, fmt="8N2") as sim:
-        r = tool("backup", sim.port, 1, "--st")
-        assert r.returncode == 0
+        r = tool("backup", sim.port, 1, "--st", "--st-name", "zone1")
+        assert r.returncode == 0 and "\nzone1 : MVD94_SETTINGS :=" in r.stdout, r.stdout
         text = r.stdout
+        bad = tool("backup", sim.port, 1, "--st", "--st-name", "1zone")
+        assert bad.returncode == 2 and "not an ST identifier" in bad.stderr
         sim.control({"op": "log", "clear": True})
         cases = [(text.replace("SV := 80.0", "SV := 400.0"), 6, "SV: 400.0 outside LOLT..HILT"),
                  (text.replace("SV := 80.0", "SV := 1000.0"), 6, "SV: 1000.0 outside -199.9..999.9"),

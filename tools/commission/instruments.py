@@ -22,13 +22,23 @@ import settings as settings_desc  # noqa: E402
 
 MODELS = {"fdc100": "FDC-100", "mvd94": "MV-D94/VD", "mts9": "MT-S9"}
 BLOCKS = {"fdc100": "FDC_Controller", "mvd94": "TempCtrl_MVD94", "mts9": "Counter_MTS9"}
-# Which registers are settings, their write order, the lock and the MT-S9's access level: the one
-# description of maps/settings.py (keys "recipe", "unlocked" of each register in maps/*.json).
-LINE_REGS = {k: {r.name for r in mbmap.load(k).registers if r.recipe == "line"} for k in MODELS}
-LOCK = {k: (a[0].name, a[1]) for k in MODELS
-        for a in [settings_desc.access_register(k)] if a and a[2] == "lock"}
-AUTHOR = {k: (a[0].name, a[1]) for k in MODELS
-          for a in [settings_desc.access_register(k)] if a and a[2] == "author"}
+
+
+def __getattr__(name):
+    """LINE_REGS (kind -> names of the registers that set the line), LOCK and AUTHOR (kind ->
+    (register, the code that opens it)): from the one description of the settings,
+    maps/settings.py (keys "recipe", "unlocked" of the registers in maps/*.json). Worked out
+    on first use, so that a broken map is reported by the command (exit 6), not at import."""
+    if name == "LINE_REGS":
+        value = {k: {r.name for r in mbmap.load(k).registers if r.recipe == "line"}
+                 for k in MODELS}
+    elif name in ("LOCK", "AUTHOR"):
+        value = {k: (a[0].name, a[1]) for k in MODELS
+                 for a in [settings_desc.access_register(k)] if a and a[2] == name.lower()}
+    else:
+        raise AttributeError(name)
+    globals()[name] = value
+    return value
 
 
 @dataclass

@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import sys
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
@@ -66,6 +67,8 @@ def parse(argv):
     b.add_argument("-o", "--output", help="the backup file (JSON)")
     b.add_argument("--st", action="store_true", help="print the settings as the ST settings "
                    "structure's initial value (a recipe to paste)")
+    b.add_argument("--st-name", metavar="NAME", help="--st: the variable's name (default "
+                   "KIND_ADDRESS_recipe, e.g. mvd94_7_recipe)")
     d = sub.add_parser("diff", help="settings that differ: two backups, or a backup and a device")
     d.add_argument("a")
     d.add_argument("b", nargs="?")
@@ -84,6 +87,8 @@ def parse(argv):
     args = p.parse_args(argv)
     if args.cmd == "backup" and not (args.output or args.st):
         p.error("backup needs -o FILE, --st, or both")
+    if getattr(args, "st_name", None) and not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", args.st_name):
+        p.error(f"--st-name {args.st_name!r}: not an ST identifier")
     if getattr(args, "address", None) is not None and args.cmd != "scan" and \
             not 1 <= args.address <= 247:
         p.error(f"address {args.address}: must be 1..247")
@@ -171,7 +176,7 @@ def cmd_backup(args, lib) -> int:
         print(f"{data['model']} at {args.address}: {len(data['registers'])} registers -> "
               f"{args.output}", file=sys.stderr if args.st else sys.stdout)
     if args.st:
-        sys.stdout.write(ins.st_recipe(data))
+        sys.stdout.write(ins.st_recipe(data, args.st_name))
     return EXIT_OK
 
 
