@@ -2,6 +2,7 @@
 """mbcommission: find the instruments on a line, back up, compare and restore their settings.
 
     mbcommission scan PORT [--baud B] [--format 8N1] [--framing rtu] [--address 1-10] [--full]
+                           [--settle]
     mbcommission backup PORT ADDRESS [line options] -o FILE [--st]
     mbcommission diff A.json B.json        |  mbcommission diff A.json --port P --address N
     mbcommission restore FILE PORT ADDRESS [line options] [--yes] [--download]
@@ -57,9 +58,10 @@ def parse(argv):
     s.add_argument("--full", action="store_true", help="after the factory settings, every setting")
     s.add_argument("--no-progress", action="store_true", help="no progress bar")
     s.add_argument("--settle", action="store_true",
-                   help="after each silent address, keep the line silent for one more reply "
-                        "timeout (the shims' settle, as the blocks do): for a line with a device "
-                        "that answers late; about twice the time")
+                   help="probe on one open line, keeping it silent for one more reply timeout "
+                        "after each silent address (the shims' settle, as the blocks do): for an "
+                        "adapter that should not be opened anew for each probe; about twice the "
+                        "time")
     b = sub.add_parser("backup", help="save every readable setting of one instrument")
     b.add_argument("port")
     b.add_argument("address", type=int)
