@@ -277,6 +277,7 @@ def parse_initial(device: str, text: str) -> dict:
         if not mm:
             raise SettingError(item, "expected FIELD := value")
         name, lit = mm.group(1).upper(), mm.group(2).replace("_", "")
+        lit = re.sub(r"^([+-]?)[A-Za-z]+#", r"\1", lit)     # a typed literal: REAL#1.5, UINT#16#30
         if name not in fs:
             raise SettingError(name, f"no field of {type_name(device)}")
         if name in out:
