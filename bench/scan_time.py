@@ -10,7 +10,9 @@ the tool reports it ("pass 1 done ... after X s") and the whole command's time; 
 setting (8N2 RTU) over 247 addresses at 9600 and at 115200, each against the simulator with the
 demo's three instruments (at 115200: the MT-S9 alone). The physical minimum of a case is
 probes x (request on the wire + the shims' shortest reply timeout for it), the time a line with
-no device at all costs; the ratio measured / minimum is printed (bench/README.md, "Scan time").
+no device at all costs; the ratio measured / minimum is printed (bench/README.md, "Scan time"),
+for the scan as it is (a fresh line for each probe: no settle) and with --settle (the shims'
+settle after each silent address, as before), side by side.
 """
 import argparse
 import os
@@ -39,10 +41,11 @@ def minimum(plan):
     return total
 
 
-def run(port, extra):
+def run(port, extra, settle=False):
     """(seconds of the whole command, {pass number: seconds after the probing began})."""
     t = time.monotonic()
-    r = subprocess.run([sys.executable, TOOL, "scan", port, "--no-progress", *extra],
+    r = subprocess.run([sys.executable, TOOL, "scan", port, "--no-progress", *extra,
+                        *(["--settle"] if settle else [])],
                        capture_output=True, text=True)
     took = time.monotonic() - t
     if r.returncode != 0:
@@ -70,20 +73,24 @@ def main():
              ("one setting at 115200", 115200,
               ["--baud", "115200", "--format", "8N2", "--framing", "rtu"],
               lineops.passes([(115200, "8N2", "rtu")], addrs))]
-    print("| case | measured s | physical minimum s | ratio |\n|---|---|---|---|")
+    print("| case | measured s | with --settle s | physical minimum s | ratio | ratio --settle |\n"
+          "|---|---|---|---|---|---|")
     with tempfile.TemporaryDirectory(dir=os.path.join(ROOT, "build")) as tmp:
         for name, baud, extra, plan in cases:
             devices = DEVICES if baud <= 19200 else ["mts9:3"]   # the SetPro stops at 19200
-            with Simulator(devices, baud=baud, fmt="8N2", link=os.path.join(tmp, "line")) as sim:
-                took, passes = run(sim.port, extra)
+            took, passes = {}, {}
+            for settle in (False, True):    # side by side: the same simulator, one after the other
+                with Simulator(devices, baud=baud, fmt="8N2", link=os.path.join(tmp, "line")) as sim:
+                    took[settle], passes[settle] = run(sim.port, extra, settle)
             if not extra:                   # the default scan: its first pass on its own
                 low = minimum(plan[0][1])
                 print(f"| pass 1: factory settings at the factory address "
                       f"({sum(len(a) for _, a in plan[0][1])} probes; time the tool reports) "
-                      f"| {passes[1]:.2f} | {low:.2f} | {passes[1] / low:.2f} |", flush=True)
+                      f"| {passes[False][1]:.2f} | {passes[True][1]:.2f} | {low:.2f} "
+                      f"| {passes[False][1] / low:.2f} | {passes[True][1] / low:.2f} |", flush=True)
             low = sum(minimum(p) for _, p in plan)
-            print(f"| {name} (whole command) | {took:.1f} | {low:.1f} | {took / low:.2f} |",
-                  flush=True)
+            print(f"| {name} (whole command) | {took[False]:.1f} | {took[True]:.1f} | {low:.1f} "
+                  f"| {took[False] / low:.2f} | {took[True] / low:.2f} |", flush=True)
 
 
 if __name__ == "__main__":

@@ -32,7 +32,7 @@ Who reads them:
 - the simulator (`tools/sim/modsim`, through [mbmap.py](mbmap.py)): no register table is left
   in its Python;
 - [settings.py](settings.py): the settings of each instrument (the recipe structures in ST, the
-  commissioning tool's restore and `backup --st`, the simulator's write checks);
+  commissioning tool's restore and `backup --st`, the order the simulator takes start-up options in);
 - the ST blocks' constants, checked by [tests/maps/check_st.py](../tests/maps/check_st.py) (rule below);
 - the tests (`ctest -L maps`, in tests/maps): the worked frames against the maps, this page against the JSON,
   the ST constants against the maps;

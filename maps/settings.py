@@ -138,6 +138,14 @@ def left_out(device: str) -> list:
     return [(r.name, _why_not(r)) for r in m.registers if "W" in r.access and _why_not(r)]
 
 
+def left_out_text(device: str) -> str:
+    """left_out() grouped by reason: 'FILT, CH01: confidence L, ...; ADDR, BAUD: ...'."""
+    why = {}
+    for n, w in left_out(device):
+        why.setdefault(w, []).append(n)
+    return "; ".join(f"{', '.join(ns)}: {w}" for w, ns in why.items())
+
+
 def restorable(device: str) -> list:
     """The registers a raw restore (mbcommission) writes, in write order: every plain RW
     register but the line, no-setting, lock and author ones (confidence L included: a raw copy
@@ -233,11 +241,11 @@ def st_literal(s: Setting, value, decimals: int = 1) -> str:
 
 
 def st_initial(device: str, values: dict, width: int = 96) -> str:
-    """The structure's initial value, fields in alphabetical order: '(A1FU := 16#30, ...)'."""
+    """The structure's initial value, fields in alphabetical order: '(A1FU := 16#30, ...)'.
+    Not checked (a backup may hold what the map calls out of range: to_raw says so on restore)."""
     m = mbmap.load(device)
     fs = by_field(device)
-    raw = to_raw(device, values)
-    state = _state(device, raw)
+    state = {s.reg.name: int(values[f]) for f, s in fs.items() if s.part == "first"}
     parts = [f"{f} := {st_literal(fs[f], values[f], m.scaling(fs[f].reg, state)[0])}"
              for f in sorted(fs)]
     lines, cur = [], "("
@@ -269,6 +277,7 @@ def parse_initial(device: str, text: str) -> dict:
         if not mm:
             raise SettingError(item, "expected FIELD := value")
         name, lit = mm.group(1).upper(), mm.group(2).replace("_", "")
+        lit = re.sub(r"^([+-]?)[A-Za-z]+#", r"\1", lit)     # a typed literal: REAL#1.5, UINT#16#30
         if name not in fs:
             raise SettingError(name, f"no field of {type_name(device)}")
         if name in out:
@@ -324,13 +333,10 @@ def render() -> str:
         fs = fields(dev)
         rank = {s.field: i + 1 for i, s in enumerate(fs)}
         order = ", ".join(s.field for s in fs)
-        why = {}
-        for n, w in left_out(dev):
-            why.setdefault(w, []).append(n)
-        left = "; ".join(f"{', '.join(ns)}: {w}" for w, ns in why.items())
+        left = left_out_text(dev)
         out.append(f"  (* {m.data['title']} ({dev}.json).")
-        out += _wrap(f"Write order: {order}.", "     ")
-        out += _wrap(f"Left out: {left}. *)", "     ")
+        out += wrap(f"Write order: {order}.", "     ")
+        out += wrap(f"Left out: {left}. *)", "     ")
         out.append(f"  {type_name(dev)} : STRUCT")
         width = max(len(s.field) + len(s.st_type) for s in fs) + 3
         for s in sorted(fs, key=lambda s: s.field):
@@ -341,7 +347,7 @@ def render() -> str:
     return "\n".join(out) + "\n"
 
 
-def _wrap(text: str, indent: str, width: int = 98) -> list:
+def wrap(text: str, indent: str, width: int = 98) -> list:
     lines, cur = [], indent
     for word in text.split(" "):
         if len(cur) + len(word) + 1 > width and cur.strip():

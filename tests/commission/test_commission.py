@@ -1,6 +1,7 @@
 """mbcommission (tools/commission) against the simulator and a pymodbus peer: scan finds exactly
 the instruments on a line, backup/restore/diff round trips, dry runs put no write on the wire, a
 device lost mid-restore is reported and a second run finishes, another model is refused."""
+import contextlib
 import json
 import os
 import subprocess
@@ -47,8 +48,13 @@ def test_scan_finds_exactly_the_instruments(tmp_path):
                    (21, "MT-S9", "RTU", "19200")], r.stdout
     assert "unknown Modbus device at 5, 9600 8N2 RTU" in r.stdout + r.stderr
     assert "PROG(71)=610 -> BTC-9100" in r.stdout          # the registers that made it
-    assert "mvd94_7 : TempCtrl_MVD94;" in r.stdout and "Baud := 19200" in r.stdout
-    assert "Framing := 'ASCII'" in r.stdout
+    # one line for the port: the one most of them speak (19200 RTU), what the others need
+    assert r.stdout.count("MB_LINE :=") == 1 and "Baud := 19200" in r.stdout, r.stdout
+    assert "mvd94_7 : TempCtrl_MVD94;" in r.stdout and "mts9_21 : Counter_MTS9;" in r.stdout
+    assert "Framing := 'ASCII'" not in r.stdout and "mts9_3 :" not in r.stdout
+    assert "MT-S9 at 3: Baud Rate Set (7) := 4 (19200) (with Author (9) >= 3 first); " \
+        "Type (8) := 1 (RTU) (with Author (9) >= 4 first)" in r.stdout, r.stdout
+    assert "FDC-100 at 12: BAUD (40) := 4 (19200)" in r.stdout, r.stdout
 
 
 def test_scan_tries_the_factory_addresses_first():
@@ -218,27 +224,198 @@ def test_bad_input_gets_one_line_and_its_status(tmp_path):
     assert r.returncode == 4 and "answers at 9" in r.stderr
 
 
+@contextlib.contextmanager
+def pymodbus_mvd94():
+    """pymodbus holding an MV-D94's map (RTU over TCP): (its tcp:// port, read(addr) of one
+    holding register through a pymodbus client)."""
+    from pymodbus import FramerType
+    from pymodbus.client import ModbusTcpClient
+    peer = subprocess.Popen([sys.executable, PEER, "rtu-tcp", "mvd94"], stdout=subprocess.PIPE,
+                            text=True)
+    client = None
+    try:
+        port = int(peer.stdout.readline().split()[1])
+        client = ModbusTcpClient("127.0.0.1", port=port, framer=FramerType.RTU)
+
+        def read(addr):
+            assert client.connected or client.connect()
+            got = client.read_holding_registers(addr, count=1, slave=1)
+            assert not got.isError(), addr
+            return got.registers[0]
+        yield f"tcp://127.0.0.1:{port}", read
+    finally:
+        if client is not None:
+            client.close()
+        peer.terminate()
+        peer.wait(timeout=10)
+
+
 def test_restore_onto_pymodbus_read_back_by_pymodbus(tmp_path):
     """An independent peer: pymodbus holding an MV-D94's map (RTU over TCP), read back with a
     pymodbus client register by register."""
-    from pymodbus import FramerType
-    from pymodbus.client import ModbusTcpClient
     a = tmp_path / "a.json"
     with Simulator(["mvd94:1:SV=150.0,DP=1,A1SP=2.5,PB=12.0"], baud=9600, fmt="8N2") as sim:
         assert tool("backup", sim.port, 1, "-o", a).returncode == 0
-    peer = subprocess.Popen([sys.executable, PEER, "rtu-tcp", "mvd94"], stdout=subprocess.PIPE,
-                            text=True)
-    try:
-        port = int(peer.stdout.readline().split()[1])
-        r = tool("restore", a, f"tcp://127.0.0.1:{port}", 1, "--yes")
+    with pymodbus_mvd94() as (port, read):
+        r = tool("restore", a, port, 1, "--yes")
         assert r.returncode == 0, r.stdout + r.stderr
         want = json.loads(a.read_text())["registers"]
-        client = ModbusTcpClient("127.0.0.1", port=port, framer=FramerType.RTU)
-        assert client.connect()
         for name in ("SV", "DP", "A1SP", "PB", "LOLT", "HILT"):
-            got = client.read_holding_registers(want[name]["addr"], count=1, slave=1)
-            assert not got.isError() and got.registers[0] == want[name]["raw"] & 0xFFFF, name
-        client.close()
-    finally:
-        peer.terminate()
-        peer.wait(timeout=10)
+            assert read(want[name]["addr"]) == want[name]["raw"] & 0xFFFF, name
+
+
+sys.path.insert(0, os.path.join(ROOT, "maps"))
+import settings  # noqa: E402  (the settings description: maps/settings.py)
+
+
+def recipe_fields(data):
+    """field -> raw of a backup's recipe fields (maps/settings.py)."""
+    kind = data["kind"]
+    raw = {n: e["raw"] for n, e in data["registers"].items()}
+    return {s.field: raw[s.reg.name] for s in settings.fields(kind)}
+
+
+@pytest.mark.parametrize("source,target,opts", [
+    ("mvd94:1:SV=120.0,DP=1,TYPE=J,HILT=300.0,A1SP=5.0,SPOF=-1.5,PB=12.5,LOCK=0101", "mvd94:2", ()),
+    ("fdc100:1:INPT=12,DP=2,SP1H=400.0,SP1=150.0,PB=20.0,ALHY=2.0", "fdc100:2", ("--format", "8N2")),
+    ("mts9:1:Decimal Set=2", "mts9:2", ())])
+def test_backup_st_is_a_recipe_that_restores_the_backup(tmp_path, source, target, opts):
+    """backup --st prints the settings structure's initial value (a declaration, fields in
+    alphabetical order, every field of the type); restore of it makes the target hold every
+    recipe field of the source, each read back; the scaling (DP, INPT) written before the
+    values it scales; a second restore writes nothing."""
+    rec, src, dst = tmp_path / "r.st", tmp_path / "src.json", tmp_path / "dst.json"
+    with Simulator([source, target], baud=9600, fmt="8N2") as sim:
+        r = tool("backup", sim.port, 1, *opts, "--st", "-o", src)
+        assert r.returncode == 0, r.stderr
+        rec.write_text(r.stdout)
+        data = json.loads(src.read_text())
+        kind = data["kind"]
+        decl = r.stdout[r.stdout.index("*)") + 2:].strip()
+        assert decl.startswith(f"{kind}_1_recipe : {settings.type_name(kind)} :=") and \
+            decl.endswith(");"), decl
+        body = decl.split(":=", 1)[1]
+        names = [p.split(":=")[0].strip(" (\n") for p in body.split(",")]
+        assert names == sorted(names) == sorted(s.field for s in settings.fields(kind)), names
+        parsed = settings.parse_initial(kind, r.stdout)
+        assert settings.to_raw(kind, parsed) == recipe_fields(data)
+        assert tool("backup", sim.port, 2, *opts, "-o", dst).returncode == 0
+        assert recipe_fields(json.loads(dst.read_text())) != recipe_fields(data)
+        sim.control({"op": "log", "clear": True})
+        dry = tool("restore", rec, sim.port, 2, *opts)
+        assert dry.returncode == 1 and "dry run" in dry.stdout and writes(sim) == []
+        done = tool("restore", rec, sim.port, 2, *opts, "--yes")
+        assert done.returncode == 0, done.stdout + done.stderr
+        order = [int(f["hex"].split()[3], 16) for f in writes(sim)]
+        first = [s.reg.addr for s in settings.fields(kind) if s.part == "first"]
+        access = settings.access_register(kind)[0].addr
+        scaling = [i for i, a in enumerate(order) if a in first]
+        values = [i for i, a in enumerate(order) if a not in first and a != access]
+        assert scaling and (not values or max(scaling) < min(values)), order
+        assert tool("backup", sim.port, 2, *opts, "-o", dst).returncode == 0
+        assert recipe_fields(json.loads(dst.read_text())) == recipe_fields(data)
+        again = tool("restore", rec, sim.port, 2, *opts, "--yes")
+        assert again.returncode == 0 and "0 setting(s) differ" in again.stdout, again.stdout
+
+
+def test_st_recipe_refused_with_one_line_before_any_write(tmp_path):
+    """A field out of its range (named), a field the type does not have, another model's
+    settings: one line, nothing written; a bare initial value takes the device's model."""
+    with Simulator(["mvd94:1:SV=80.0,DP=1,HILT=300.0", "fdc100:2"], baud=9600, fmt="8N2") as sim:
+        r = tool("backup", sim.port, 1, "--st", "--st-name", "zone1")
+        assert r.returncode == 0 and "\nzone1 : MVD94_SETTINGS :=" in r.stdout, r.stdout
+        text = r.stdout
+        bad = tool("backup", sim.port, 1, "--st", "--st-name", "1zone")
+        assert bad.returncode == 2 and "not an ST identifier" in bad.stderr
+        sim.control({"op": "log", "clear": True})
+        cases = [(text.replace("SV := 80.0", "SV := 400.0"), 6, "SV: 400.0 outside LOLT..HILT"),
+                 (text.replace("SV := 80.0", "SV := 1000.0"), 6, "SV: 1000.0 outside -199.9..999.9"),
+                 (text.replace("CT := 20", "CT := 101"), 6, "CT: 101 outside 0..100"),
+                 (text.replace("CT := 20", "CYCLE := 20"), 6, "CYCLE: no field of MVD94_SETTINGS"),
+                 (text.replace("SV := 80.0", "SV := hot"), 6, "SV: hot is no number")]
+        for i, (bad, status, why) in enumerate(cases):
+            f = tmp_path / f"bad{i}.st"
+            f.write_text(bad)
+            r = tool("restore", f, sim.port, 1, "--yes")
+            assert r.returncode == status and why in r.stderr, (why, r.stderr)
+            assert len(r.stderr.strip().splitlines()) == 1 and "nothing written" in r.stderr
+        good = tmp_path / "good.st"
+        good.write_text(text)
+        r = tool("restore", good, sim.port, 2, "--yes", "--format", "8N2")
+        assert r.returncode == 4 and "MVD94_SETTINGS" in r.stderr, r.stderr
+        bare = tmp_path / "bare.st"                      # only the initial value: the device's
+        bare.write_text(text.split(":=", 1)[1].replace("SV := 80.0", "SV := 90.0"))
+        assert writes(sim) == []
+        r = tool("restore", bare, sim.port, 1, "--yes")
+        assert r.returncode == 0 and "1 setting(s) differ" in r.stdout, r.stdout + r.stderr
+        assert sim.control({"op": "get", "addr": 1, "reg": "SV"})["eng"] == 90.0
+
+
+def test_st_recipe_onto_pymodbus_read_back_by_pymodbus(tmp_path):
+    """backup --st from the simulator, restored onto pymodbus holding an MV-D94's map (RTU over
+    TCP), every recipe field read back with a pymodbus client."""
+    rec, src = tmp_path / "r.st", tmp_path / "src.json"
+    with Simulator(["mvd94:1:SV=150.0,DP=1,A1SP=2.5,PB=12.0,HYST=0.5"], baud=9600, fmt="8N2") as sim:
+        r = tool("backup", sim.port, 1, "--st", "-o", src)
+        assert r.returncode == 0, r.stderr
+        rec.write_text(r.stdout)
+    want = recipe_fields(json.loads(src.read_text()))
+    with pymodbus_mvd94() as (port, read):
+        r = tool("restore", rec, port, 1, "--yes")
+        assert r.returncode == 0, r.stdout + r.stderr
+        for s in settings.fields("mvd94"):
+            assert read(s.reg.addr) == want[s.field] & 0xFFFF, s.field
+
+
+def declared(out):
+    """(MB_LINE names declared, the Line := of each block call, the block instances)."""
+    lines = [x.split(":")[0].strip() for x in out.splitlines() if "MB_LINE :=" in x]
+    calls = [x.split("Line := ")[1].rstrip(");") for x in out.splitlines() if "Line := " in x]
+    blocks = [x.split(":")[0].strip() for x in out.splitlines()
+              if x.rstrip().endswith(("TempCtrl_MVD94;", "FDC_Controller;", "Counter_MTS9;"))]
+    return lines, calls, blocks
+
+
+def test_mixed_line_gives_one_working_declaration_set_or_a_clear_message():
+    """The issue's line: an FDC-100 at 5, two MV-D94 at 17 and 18, an MT-S9 at 200 in ASCII.
+    The scan says they cannot share one line and what to set (the MT-S9's Type, with Author),
+    declares one MB_LINE for the three that share it and nothing that would give ErrorID 9.
+    With the MT-S9 moved to RTU: one MB_LINE for all four, every block on it, each instrument
+    answering with those settings."""
+    with Simulator(["fdc100:5", "mvd94:17", "mvd94:18", "mts9:200:framing=ascii"], baud=9600,
+                   fmt="8N2") as sim:
+        r = tool("scan", sim.port, "--address", "5,17,18,200", "--no-progress")
+        assert r.returncode == 0, r.stderr
+        assert "do not share one line setting" in r.stdout, r.stdout
+        assert "MT-S9 at 200: Type (8) := 1 (RTU) (with Author (9) >= 4 first)" in r.stdout
+        lines, calls, blocks = declared(r.stdout)
+        assert len(lines) == 1 and set(calls) == set(lines), r.stdout
+        assert sorted(blocks) == ["fdc100_5", "mvd94_17", "mvd94_18"], r.stdout
+        assert "Framing := 'ASCII'" not in r.stdout
+        sim.control({"op": "set", "addr": 200, "reg": "Type", "raw": 1})    # the fix: RTU
+        r = tool("scan", sim.port, "--address", "5,17,18,200", "--no-progress")
+        assert r.returncode == 0, r.stderr
+        assert "do not share" not in r.stdout, r.stdout
+        lines, calls, blocks = declared(r.stdout)
+        assert len(lines) == 1 and calls == lines * 4, r.stdout
+        assert sorted(blocks) == ["fdc100_5", "mts9_200", "mvd94_17", "mvd94_18"], r.stdout
+        decl = next(x for x in r.stdout.splitlines() if "MB_LINE :=" in x)
+        fields = dict(f.split(" := ") for f in decl.split("(", 1)[1].rstrip(");").split(", "))
+        assert "Framing" not in fields and fields["Parity"] == "'N'", decl
+        fmt = f"8{fields['Parity'].strip(chr(39))}{fields['StopBits']}"
+        for a in (5, 17, 18, 200):                      # every instrument on that one line
+            b = tool("backup", sim.port, a, "--baud", fields["Baud"], "--format", fmt, "--st")
+            assert b.returncode == 0 and "_SETTINGS :=" in b.stdout, (a, b.stderr)
+
+
+def test_scan_finds_a_device_whose_reply_comes_late():
+    """A probe goes on a fresh line (no settle after a silent address). A device whose reply
+    comes after the reply timeout garbles the next address's probe: both are probed again with
+    the settle, and the device is found."""
+    with Simulator(["mvd94:4"], baud=9600, fmt="8N2") as sim:
+        sim.control({"op": "fault", "addr": 4, "kind": "late", "delay_ms": 85, "count": 1})
+        r = tool("scan", sim.port, "--address", "3-6", "--baud", 9600, "--format", "8N2",
+                 "--framing", "rtu", "--no-progress")
+    assert r.returncode == 0, r.stdout + r.stderr
+    rows = [line.split() for line in r.stdout.splitlines() if line[:7].strip().isdigit()]
+    assert [(int(x[0]), x[1]) for x in rows] == [(4, "MV-D94/VD")], r.stdout

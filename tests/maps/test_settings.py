@@ -89,6 +89,8 @@ def test_st_initial_round_trip_alphabetical():
         assert fields == sorted(fields) == sorted(v), text
         back = settings.parse_initial(dev, f"r : {settings.type_name(dev)} := {text};")
         assert settings.to_raw(dev, back) == settings.to_raw(dev, v)
+    assert settings.parse_initial("mts9", "(* a comment *) (decimal_set := UINT#16#2)") == \
+        {"DECIMAL_SET": 2}
     with pytest.raises(settings.SettingError) as e:
         settings.parse_initial("mts9", "(DECIMAL_SET := 2, BAUD := 3)")
     assert e.value.field == "BAUD"

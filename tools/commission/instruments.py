@@ -1,6 +1,6 @@
 """What the commissioning tool knows of the three instruments, all of it from maps/*.json: how
 to recognise one on a line, which registers are its settings, in which order they are restored,
-and the ST declaration that drives it.
+and its settings as an ST recipe (the declarations of a scan: oneline.py).
 
 Identification never guesses: each check reads registers the map defines and states them.
   FDC-100   ADDR (39) = the address, BAUD (40) = the line's baud code, PROG (71) = a model of
@@ -18,22 +18,27 @@ from dataclasses import dataclass, field
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.dirname(
     os.path.abspath(__file__)))), "maps"))
 import mbmap  # noqa: E402
+import settings as settings_desc  # noqa: E402
 
 MODELS = {"fdc100": "FDC-100", "mvd94": "MV-D94/VD", "mts9": "MT-S9"}
 BLOCKS = {"fdc100": "FDC_Controller", "mvd94": "TempCtrl_MVD94", "mts9": "Counter_MTS9"}
-# Registers that set the line (the device would leave it when restored) and values that are
-# no settings (a count, a command, factory data); never restored.
-LINE_REGS = {"mvd94": {"ADDR", "BAUD"}, "fdc100": {"ADDR", "BAUD", "DATA", "PARI", "STOP", "COMM"},
-             "mts9": {"ID Address Set", "Baud Rate Set", "Type"}}
-NOT_SETTINGS = {"mvd94": set(), "mts9": {"Real Data"},
-                "fdc100": {"CMND", "JOB1", "JOB2", "JOB3", "DATE", "SRNO", "HOUR"}}
-# Restore order: what the others' scaling and limits depend on first (the manuals: input type,
-# unit and decimal point before limits and set points); the lock register last.
-FIRST = {"mvd94": ["TYPE", "UNIT", "DP", "ACT", "LOLT", "HILT"],
-         "fdc100": ["INPT", "UNIT", "DP", "INLO", "INHI", "SP1L", "SP1H"],
-         "mts9": ["Decimal Set"]}
-LOCK = {"mvd94": ("LOCK", 0x20), "fdc100": ("LOCK", 0)}   # register, its unlocked code
-AUTHOR = {"mts9": ("Author", 5)}   # set-up writes need Author >= 1..4: raised, then restored
+
+
+def __getattr__(name):
+    """LINE_REGS (kind -> names of the registers that set the line), LOCK and AUTHOR (kind ->
+    (register, the code that opens it)): from the one description of the settings,
+    maps/settings.py (keys "recipe", "unlocked" of the registers in maps/*.json). Worked out
+    on first use, so that a broken map is reported by the command (exit 6), not at import."""
+    if name == "LINE_REGS":
+        value = {k: {r.name for r in mbmap.load(k).registers if r.recipe == "line"}
+                 for k in MODELS}
+    elif name in ("LOCK", "AUTHOR"):
+        value = {k: (a[0].name, a[1]) for k in MODELS
+                 for a in [settings_desc.access_register(k)] if a and a[2] == name.lower()}
+    else:
+        raise AttributeError(name)
+    globals()[name] = value
+    return value
 
 
 @dataclass
@@ -93,13 +98,9 @@ def identify(read, address: int, baud: int, fmt: str, framing: str) -> Found | N
 
 
 def settings(kind: str) -> list:
-    """The restorable registers of a kind, in restore order (lock/author handled apart)."""
-    m = maps()[kind]
-    skip = LINE_REGS[kind] | NOT_SETTINGS[kind] | {LOCK.get(kind, ("",))[0]} | \
-        {AUTHOR.get(kind, ("",))[0]}
-    regs = [r for r in m.registers if r.access == "RW" and r.name not in skip and 3 in r.fc]
-    first = [m.reg(n) for n in FIRST[kind]]
-    return first + [r for r in regs if r not in first]
+    """The registers a restore writes, in write order (the lock and access level apart):
+    maps/settings.py's restorable()."""
+    return settings_desc.restorable(kind)
 
 
 def readable(kind: str) -> list:
@@ -121,17 +122,42 @@ def describe(kind: str, reg, raw: int, state: dict) -> dict:
     return entry
 
 
-def st_declaration(found: Found, port: str, baud: int, fmt: str) -> str:
-    """The ST to paste for an instrument: its block and, where not the block's default, MB_LINE."""
-    data, parity, stop = int(fmt[0]), fmt[1], int(fmt[2])
-    name = f"{found.kind}_{found.address}"
-    fields = [f"Baud := {baud}"]
-    if data != 8:
-        fields.append(f"DataBits := {data}")
-    if found.framing != "rtu":
-        fields.append(f"Framing := '{found.framing.upper()}'")
-    fields += [f"Parity := '{parity}'", f"StopBits := {stop}"]
-    return (f"VAR\n  {name}_line : MB_LINE := ({', '.join(fields)});\n"
-            f"  {name} : {BLOCKS[found.kind]};\nEND_VAR\n"
-            f"{name}(Enable := TRUE, Port := '{port}', SlaveId := {found.address}, "
-            f"Line := {name}_line);")
+def st_recipe(data: dict, name: str | None = None) -> str:
+    """A backup as its settings structure's initial value, declared (maps/settings.py): the
+    recipe fields in alphabetical order, ready to paste into a VAR block."""
+    kind = data["kind"]
+    values = settings_desc.from_raw(kind, {n: e["raw"] for n, e in data["registers"].items()})
+    line = data.get("line", {})
+    where = f"{data['model']} at {line.get('address', '?')}"
+    if line:
+        where += (f" on {line.get('port')}, {line.get('baud')} {line.get('format')} "
+                  f"{str(line.get('framing', '')).upper()}")
+    left = settings_desc.left_out_text(kind)
+    head = settings_desc.wrap(f"(* {where.replace('*)', '* )')}, backed up {data.get('saved', '')}"
+                              f" by mbcommission. Not in it: {left}. *)", "   ", 96)
+    head[0] = head[0].lstrip()
+    name = name or f"{kind}_{line.get('address', 0)}_recipe"
+    body = settings_desc.st_initial(kind, values).replace("\n", "\n    ")
+    return "\n".join(head) + f"\n{name} : {settings_desc.type_name(kind)} :=\n    {body};\n"
+
+
+def st_kind(text: str) -> str | None:
+    """The kind whose settings type an ST text names (None: a bare initial value)."""
+    for k in MODELS:
+        if settings_desc.type_name(k).upper() in text.upper():
+            return k
+    return None
+
+
+def recipe_backup(kind: str, text: str, have: dict) -> dict:
+    """What a device would hold with an ST recipe applied: `have` (a backup of it) with the
+    recipe's fields over it. SettingError names a field that does not parse or fits no range."""
+    raw = settings_desc.to_raw(kind, settings_desc.parse_initial(kind, text))
+    regs = {n: dict(e) for n, e in have["registers"].items()}
+    fields = settings_desc.by_field(kind)
+    for f, r in raw.items():
+        regs[fields[f].reg.name]["raw"] = r
+    state = {k: v["raw"] for k, v in regs.items() if k in ("DP", "INPT", "ALFN")}
+    m = mbmap.load(kind)
+    regs = {n: describe(kind, m.reg(n), e["raw"], state) for n, e in regs.items()}
+    return {**have, "registers": regs, "from_st": True}

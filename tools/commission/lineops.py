@@ -7,7 +7,7 @@ import sys
 import time
 
 import instruments as ins
-from shims import E_EXCEPTION_BASE, E_NOPORT, E_PORTLOST
+from shims import E_BADREPLY, E_CRC, E_EXCEPTION_BASE, E_NOPORT, E_PORTLOST, E_TIMEOUT
 
 # The manuals' factory line settings. A UART checks one stop bit only, so the 8N2 probe also
 # reaches 8N1 devices; the MT-S9's manual states no factory line: 9600 in ASCII (its RTU and
@@ -98,7 +98,12 @@ def check_port(port: str) -> None:
         raise LineError(EXIT_PORT, f"{port}: no such port")
 
 
+_PROBE_BUS: dict = {}     # the line of the scan's probes, by setting (open_line closes it)
+
+
 def open_line(lib, port, baud, fmt, framing, retries=-1) -> int:
+    """A fresh bus (every bus before it is closed: a new line setting needs a new bus)."""
+    _PROBE_BUS.clear()
     lib.shutdown()
     bus = lib.open_bus(port, baud, fmt[1], int(fmt[0]), int(fmt[2]), framing, 0, retries)
     if bus < 0:
@@ -125,6 +130,8 @@ def scan(lib, args) -> list:
     total = sum(plan_seconds(p) for _, p in plan)
     print(f"{len(todo)} line setting(s) x {len(addrs)} address(es): at least {total:.0f} s "
           f"(each silent address costs a request and the shims' shortest reply timeout)")
+    if args.settle:
+        print("  --settle: each silent address also owes one more reply timeout: about twice that")
     for i, (title, p) in enumerate(plan, 1):
         probes = sum(len(a) for _, a in p)
         print(f"  pass {i}: {title}: {probes} probe(s), at least {plan_seconds(p):.1f} s",
@@ -155,27 +162,63 @@ class Interrupted(Exception):
 def _passes(lib, args, plan, bar, found, seen, t0):
     from tqdm import tqdm
     for i, (title, p) in enumerate(plan, 1):
-        for (baud, fmt, framing), pass_addrs in p:
-            bus = open_line(lib, args.port, baud, fmt, framing, retries=0)
+        for setting, pass_addrs in p:
+            baud, fmt, framing = setting
             bar.set_description(f"pass {i}/{len(plan)} {baud} {fmt} {framing}")
+            before = None                    # the address probed before, when it was silent
             for a in pass_addrs:
-                read = reader(lib, lib.open_device(bus, a))
-                rc, _ = read(3, 0, 1)
+                rc, read = probe(lib, args, setting, a, fresh=not args.settle)
                 bar.update(probe_seconds(baud, fmt, framing))
-                if rc != 0 and rc < E_EXCEPTION_BASE:
-                    continue
-                f = ins.identify(read, a, baud, fmt, framing)
-                if f is None:
-                    f = ins.Found("unknown", a, [f"answered FC03 at 0 ({'exception %d' % (rc - 128) if rc else 'data'});"
-                                                 " fits none of MV-D94/VD, MT-S9, FDC-100"], framing=framing)
-                    tqdm.write(f"unknown Modbus device at {a}, {baud} {fmt} {framing.upper()}")
-                key = (a, f.kind, baud, f.framing)
-                if key not in seen:
-                    seen.add(key)
-                    found.append(((baud, fmt, framing), f))
+                if rc in (E_CRC, E_BADREPLY) and not args.settle:
+                    # garbled, or another address's reply: a late reply of the silent address
+                    # before can be heard here. Both again, with the shims' settle between.
+                    again = [before, a] if before else [a]
+                    bus = open_line(lib, args.port, baud, fmt, framing, retries=0)
+                    for b in again:
+                        read = reader(lib, lib.open_device(bus, b))
+                        rc, _ = read(3, 0, 1)
+                        if b != a:
+                            _identify(read, rc, b, setting, found, seen, tqdm)
+                    if rc in (E_CRC, E_BADREPLY):
+                        tqdm.write(f"a garbled or foreign reply at {a}, {baud} {fmt} "
+                                   f"{framing.upper()}, twice: noise, or a device slower than "
+                                   "the reply timeout")
+                _identify(read, rc, a, setting, found, seen, tqdm)
+                before = a if rc == E_TIMEOUT else None
         tqdm.write(f"pass {i} done ({title}) after {time.monotonic() - t0:.1f} s: "
                    f"{len(found)} instrument(s) found so far")
         sys.stdout.flush()
+
+
+def probe(lib, args, setting, a, fresh: bool):
+    """One FC03 of register 0 at address a, one attempt: (rc, read). fresh: on a line opened
+    for it, so that it owes no settle (the shims' response timeout of silence after a request
+    another address left unanswered, which would double the cost of every silent address);
+    else on the line of the probe before (opened when the setting changes)."""
+    baud, fmt, framing = setting
+    bus = _PROBE_BUS.get(setting)
+    if fresh or bus is None:
+        bus = open_line(lib, args.port, baud, fmt, framing, retries=0)
+        _PROBE_BUS[setting] = bus
+    read = reader(lib, lib.open_device(bus, a))
+    rc, _ = read(3, 0, 1)
+    return rc, read
+
+
+def _identify(read, rc, a, setting, found, seen, tqdm) -> None:
+    """After a probe that was answered (data or an exception): which instrument, into found."""
+    baud, fmt, framing = setting
+    if rc != 0 and rc < E_EXCEPTION_BASE:
+        return
+    f = ins.identify(read, a, baud, fmt, framing)
+    if f is None:
+        f = ins.Found("unknown", a, [f"answered FC03 at 0 ({'exception %d' % (rc - 128) if rc else 'data'});"
+                                     " fits none of MV-D94/VD, MT-S9, FDC-100"], framing=framing)
+        tqdm.write(f"unknown Modbus device at {a}, {baud} {fmt} {framing.upper()}")
+    k = (a, f.kind, baud, f.framing)
+    if k not in seen:
+        seen.add(k)
+        found.append((setting, f))
 
 
 def _find(lib, args):

@@ -16,13 +16,15 @@ from .control import Control
 from .fdc100 import Fdc100
 from .mts9 import MtS9
 from .mvd94 import MvD94, Vd
+from .regmap import mbmap
 from .rtutcp import RtuTcpLine
 from .tcp import TcpLine
 from .transport import SerialLine
 
+import settings  # noqa: E402  (maps/settings.py, on the path through regmap)
+
 KINDS = {"mvd94": MvD94, "vd": Vd, "mts9": MtS9, "fdc100": Fdc100}
 TICK_S = 0.05       # real seconds between steps of the dynamics
-INIT_FIRST = ("DP", "INPT", "LOLT", "HILT", "SP1L", "SP1H")   # others' scaling/range use these
 
 
 class Parser(argparse.ArgumentParser):
@@ -125,8 +127,7 @@ def build(args):
     for kind, addr, items in specs:
         dev = KINDS[kind](addr, line, random.Random(f"{args.seed}:dev:{addr}"))
         items = [it for it in items if not dev.option(*it)]
-        items.sort(key=lambda it: INIT_FIRST.index(it[0].upper())
-                   if it[0].upper() in INIT_FIRST else len(INIT_FIRST))
+        items.sort(key=lambda it: init_rank(kind, it[0]))
         for name, value in items:
             try:
                 dev.set_eng(name, value)
@@ -157,6 +158,17 @@ def find_ptyline(given: str | None) -> str | None:
     found = glob.glob(os.path.join(root, "build*", "tools", "sim", "ptyline", "mbfb-ptyline"))
     found = [f for f in found if os.access(f, os.X_OK)]
     return max(found, key=os.path.getmtime) if found else None
+
+
+def init_rank(kind: str, name: str) -> int:
+    """Start-up options are set in the order the instrument needs them written (the settings
+    description, maps/settings.py): what scales the others (input type, unit, decimal point),
+    then the limits, then the rest."""
+    try:
+        part = mbmap.load(kind).reg(name).recipe
+    except KeyError:
+        return settings.ORDER[""]
+    return settings.ORDER[part] if part in ("first", "limit") else settings.ORDER[""]
 
 
 def check_line(kind, addr, dev, line):

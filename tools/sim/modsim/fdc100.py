@@ -100,13 +100,12 @@ class Fdc100(Device):
         if not self.in_range(reg, raw):
             raise ModbusError(ILLEGAL_VALUE, f"{reg.name}={raw} out of range")
 
+    def limit_raw(self, reg):
+        """SP1 lies within SP1L..SP1H as they are after the write: an FC16 that brings new
+        limits with SP1 (Example 1's whole parameter block) is checked as one set."""
+        return self.block.get(reg.addr, self.words[reg.addr])
+
     def in_range(self, reg, raw):
-        if reg.name == "SP1":
-            # SP1 within SP1L..SP1H as they are after the write: an FC16 that brings new
-            # limits with SP1 (Example 1's whole parameter block) is checked as one set.
-            low = self.block.get(A["SP1L"], self.words[A["SP1L"]])
-            high = self.block.get(A["SP1H"], self.words[A["SP1H"]])
-            return low <= raw <= high
         if reg.name == "CMND":
             return raw in CMND.values()
         return super().in_range(reg, raw)

@@ -69,13 +69,6 @@ class MvD94(Device):
             raise ModbusError(ILLEGAL_ADDRESS, f"FC06 at {addr:#06x}")
         return super().writable_reg(addr)
 
-    def in_range(self, reg, raw):
-        if reg.name == "SV":
-            lo = self.get_raw(self.by_name["LOLT"])
-            hi = self.get_raw(self.by_name["HILT"])
-            return min(lo, hi) <= raw <= max(lo, hi)
-        return super().in_range(reg, raw)
-
     def word(self, addr):
         if addr == A_PV:
             return self.pv_raw() & 0xFFFF

@@ -47,6 +47,7 @@ class Reg:
     default: int = 0
     words: int = 1
     aliases: tuple = ()
+    within: tuple = ()             # names of the limits the value must lie within (the map's)
 
     def from_words(self, words: list[int]) -> int:
         """Raw value (signed if the register is) from its 16-bit words, low word first."""
@@ -83,7 +84,7 @@ def regs_from_map(m) -> tuple:
         lo, hi = r.range if r.range is not None else (None, None)
         out.append(Reg(r.addr, r.name, ACCESS[r.access], lo=lo, hi=hi, signed=r.signed,
                        scale=r.scale, codes=codes, default=r.default, words=r.words,
-                       aliases=r.aliases))
+                       aliases=r.aliases, within=r.within))
     return tuple(out)
 
 
@@ -231,7 +232,14 @@ class Device:
             return False
         if reg.hi is not None and raw > reg.hi:
             return False
+        if reg.within:               # a set point within its limits (the map's "within")
+            low, high = (self.limit_raw(self.by_name[n.upper()]) for n in reg.within)
+            return low <= raw <= high
         return True
+
+    def limit_raw(self, reg: Reg) -> int:
+        """A limit's raw value for the within check (the FDC: as after the FC16 being checked)."""
+        return self.get_raw(reg)
 
     # ----- Modbus PDU handling -----
     def handle(self, pdu: bytes, broadcast: bool = False) -> bytes | None:
