@@ -14,7 +14,7 @@
  * mbfb_plan_set/_stop/_invalidate/_take, mbfb_dev_diag, mbfb_dev_diag_seq,
  * mbfb_bus_diag, mbfb_strerror) never block and never allocate; the only system call
  * they make is a write() to the bus's eventfd in mbfb_post, mbfb_post_write and
- * mbfb_plan_set, to wake the worker (one per burst of posts while it is busy).
+ * mbfb_plan_set, to wake the worker, and only when it is waiting (none while it is busy).
  * Setup calls (mbfb_bus_open, mbfb_dev_open) may allocate and start the worker;
  * they do not wait for the port: opening happens on the worker, and a port that
  * cannot be opened makes that bus's requests end with MBFB_E_NOPORT.

@@ -371,8 +371,9 @@ typedef struct mbfb_bus {
                                 closes the port and returns (README "Lifetime")      */
     uint32_t post_seq;       /* atomic: next sequence number                      */
     int wake_fd;             /* eventfd the worker waits on (mbfb_wake.c), -1: none */
-    uint32_t wake_pending;   /* atomic: posts since the worker last looked; the first
-                                of them writes wake_fd                               */
+    uint32_t wake_pending;   /* atomic: posts since the worker last looked            */
+    int waiting;             /* atomic: the worker waits on wake_fd: the first post since
+                                it looked writes wake_fd (mbfb_wake.c)               */
     pthread_t worker;
     int index;
     int n_plans;             /* atomic: plans[0..n_plans) published               */
@@ -421,8 +422,8 @@ void mbfb_plans_no_port(mbfb_bus_t *bus, int64_t now, int err);
 int  mbfb_wake_open(mbfb_bus_t *bus);
 /** Close bus->wake_fd (the worker has stopped). */
 void mbfb_wake_close(mbfb_bus_t *bus);
-/** Scan side (post, plan_set, shutdown): wake the worker. Never blocks; one write() for
- *  the first post since the worker last looked, none for the others. */
+/** Scan side (post, plan_set, shutdown): wake the worker. Never blocks; a write() only
+ *  when the worker waits and no post before this one since it looked has woken it. */
 void mbfb_wake(mbfb_bus_t *bus);
 /** Worker: take the posts made so far (the checks after this call see each of them). */
 void mbfb_wake_take(mbfb_bus_t *bus);

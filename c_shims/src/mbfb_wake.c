@@ -4,8 +4,11 @@
  * An eventfd: the worker waits on it and, while a device is out of step, on the port in
  * the same ppoll, so it uses no CPU until a post, a byte on the port or its next due time
  * comes (a semaphore cannot be polled beside a file descriptor). Posts count in
- * bus->wake_pending; only the first since the worker last looked writes the eventfd, so
- * a burst of posts while the worker is busy costs one write().
+ * bus->wake_pending, and only a post that finds the worker waiting (bus->waiting) and no
+ * post before it since the worker last looked writes the eventfd: a post while the worker
+ * is busy makes no system call. Both sides use sequentially consistent atomics: a poster
+ * that sees waiting == 0 has its count seen by the worker's check after it set waiting,
+ * so the worker never waits on a post it missed.
  */
 #ifndef _GNU_SOURCE
 #define _GNU_SOURCE /* ppoll */
@@ -33,8 +36,9 @@ void mbfb_wake_close(mbfb_bus_t *bus)
 void mbfb_wake(mbfb_bus_t *bus)
 {
     uint64_t one = 1;
-    /* acq_rel: orders the caller's slot or settings stores before the worker's take */
-    if (__atomic_fetch_add(&bus->wake_pending, 1u, __ATOMIC_ACQ_REL) == 0)
+    /* also orders the caller's slot or settings stores before the worker's take */
+    if (__atomic_fetch_add(&bus->wake_pending, 1u, __ATOMIC_SEQ_CST) == 0 &&
+        __atomic_load_n(&bus->waiting, __ATOMIC_SEQ_CST))
         (void)!write(bus->wake_fd, &one, sizeof one); /* non-blocking; never full here */
 }
 
@@ -43,7 +47,8 @@ void mbfb_wake_take(mbfb_bus_t *bus)
     (void)__atomic_exchange_n(&bus->wake_pending, 0u, __ATOMIC_ACQ_REL);
 }
 
-int mbfb_wake_wait(mbfb_bus_t *bus, int port_fd, int64_t until)
+/* The wait itself: ppoll on the eventfd (and the port), drained when it fired. */
+static int poll_wake(mbfb_bus_t *bus, int port_fd, int64_t until)
 {
     struct pollfd fds[2];
 
@@ -73,4 +78,16 @@ int mbfb_wake_wait(mbfb_bus_t *bus, int port_fd, int64_t until)
         }
         return port_fd >= 0 && fds[1].revents != 0; /* readable or hung up */
     }
+}
+
+int mbfb_wake_wait(mbfb_bus_t *bus, int port_fd, int64_t until)
+{
+    int rc;
+
+    __atomic_store_n(&bus->waiting, 1, __ATOMIC_SEQ_CST);
+    rc = __atomic_load_n(&bus->wake_pending, __ATOMIC_SEQ_CST) == 0
+             ? poll_wake(bus, port_fd, until)
+             : 0; /* a post came since the worker looked: no wait */
+    __atomic_store_n(&bus->waiting, 0, __ATOMIC_RELAXED);
+    return rc;
 }
