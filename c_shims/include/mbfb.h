@@ -251,8 +251,9 @@ typedef struct mbfb_snap {
  *  mbfb_plan_set. Returns a plan handle >= 0 or a negative error. */
 int mbfb_plan_open(int dev);
 
-/** Set a plan's reads, its period and slow period (ms) and start it (again). A refresh on
- *  the wire finishes under the old settings. Returns 0 or -MBFB_E_INVAL (bad item, too
+/** Set a plan's reads, its period and slow period (ms) and start it (again); the slow tier
+ *  is due in the first refresh under them (its generation moves, as with
+ *  mbfb_plan_invalidate). A refresh on the wire finishes under the old settings. Returns 0 or -MBFB_E_INVAL (bad item, too
  *  many words), -MBFB_E_BADHANDLE. */
 int mbfb_plan_set(int plan, const mbfb_plan_item_t *items, int n, int period_ms,
                   int slow_period_ms);
