@@ -12,9 +12,9 @@
  *
  * Scan-side calls (mbfb_post, mbfb_post_write, mbfb_poll, mbfb_take, mbfb_cancel,
  * mbfb_plan_set/_stop/_invalidate/_take, mbfb_dev_diag, mbfb_dev_diag_seq,
- * mbfb_bus_diag, mbfb_strerror) never block, never touch a file descriptor and never
- * allocate; the only system call they make is sem_post in mbfb_post, mbfb_post_write
- * and mbfb_plan_set (to wake the worker).
+ * mbfb_bus_diag, mbfb_strerror) never block and never allocate; the only system call
+ * they make is a write() to the bus's eventfd in mbfb_post, mbfb_post_write and
+ * mbfb_plan_set, to wake the worker, and only when it is waiting (none while it is busy).
  * Setup calls (mbfb_bus_open, mbfb_dev_open) may allocate and start the worker;
  * they do not wait for the port: opening happens on the worker, and a port that
  * cannot be opened makes that bus's requests end with MBFB_E_NOPORT.
@@ -240,8 +240,9 @@ typedef struct mbfb_snap {
     uint32_t seq;        /* refresh number, 1, 2, ... (0: none yet)                     */
     int32_t  result;     /* MBFB_OK, or the MBFB_E_* of the read that failed (then no
                             word is valid)                                              */
-    uint32_t gen;        /* mbfb_plan_invalidate generation seen when this refresh
-                            started: slow items read in it were read after that call   */
+    uint32_t gen;        /* the slow tier's generation (mbfb_plan_invalidate; moved by
+                            mbfb_plan_set too) when this refresh started: slow items
+                            read in it were read after that call                       */
     uint32_t read_mask;  /* bit i: item i was read (and checked) in this refresh        */
     uint16_t words[MBFB_PLAN_MAX_WORDS];
 } mbfb_snap_t;
@@ -250,8 +251,9 @@ typedef struct mbfb_snap {
  *  mbfb_plan_set. Returns a plan handle >= 0 or a negative error. */
 int mbfb_plan_open(int dev);
 
-/** Set a plan's reads, its period and slow period (ms) and start it (again). A refresh on
- *  the wire finishes under the old settings. Returns 0 or -MBFB_E_INVAL (bad item, too
+/** Set a plan's reads, its period and slow period (ms) and start it (again); the slow tier
+ *  is due in the first refresh under them (its generation moves, as with
+ *  mbfb_plan_invalidate). A refresh on the wire finishes under the old settings. Returns 0 or -MBFB_E_INVAL (bad item, too
  *  many words), -MBFB_E_BADHANDLE. */
 int mbfb_plan_set(int plan, const mbfb_plan_item_t *items, int n, int period_ms,
                   int slow_period_ms);

@@ -137,14 +137,14 @@ static int rtutcp_send(mbfb_bus_t *bus, const uint8_t *frame, int len)
  * FC03/04), or 0 when its function code gives no length. */
 static int wire_len(const uint8_t *buf, int got)
 {
-    if (buf[1] & 0x80)
-        return 5; /* slave, fc | 0x80, code, CRC */
+    if (buf[1] & MBFB_EXCEPTION_BIT)
+        return 5; /* slave, fc | MBFB_EXCEPTION_BIT, code, CRC */
     switch (buf[1]) {
-    case 3:
-    case 4:
+    case MBFB_FC_READ_HOLDING:
+    case MBFB_FC_READ_INPUT:
         return got < 3 ? -1 : 5 + buf[2];
-    case 6:
-    case 16:
+    case MBFB_FC_WRITE_SINGLE:
+    case MBFB_FC_WRITE_MULTIPLE:
         return 8;
     default:
         return 0;

@@ -169,6 +169,7 @@ static const mbfb_backend_t *backend_for(int framing, const char *port)
 /* Free a bus (its worker has stopped). */
 static void bus_free(mbfb_bus_t *bus)
 {
+    mbfb_wake_close(bus);
     free(bus->port);
     free(bus->key);
     free(bus);
@@ -198,11 +199,12 @@ static int bus_create(int index, const mbfb_bus_config_t *c, const char *key)
     else if (is_tcp(c->port))
         bus->timing.net_us = MBFB_NET_ALLOWANCE_US; /* RTU over TCP: the network leg */
     bus->fd = -1;
+    bus->wake_fd = -1;
     bus->index = index;
     slot_epoch += 4096; /* handles from before a shutdown stay stale */
     for (int i = 0; i < MBFB_MAX_SLOTS; i++)
         bus->slots[i].state = (slot_epoch & MBFB_GEN_MASK) << 4;
-    if (sem_init(&bus->wake, 0, 0) != 0 || start_worker(bus) != 0) {
+    if (mbfb_wake_open(bus) != 0 || start_worker(bus) != 0) {
         bus_free(bus);
         return -MBFB_E_NOMEM;
     }
@@ -348,7 +350,7 @@ void mbfb_shutdown(void)
         mbfb_bus_t *b = mbfb_buses[i];
         if (b != NULL) {
             __atomic_store_n(&b->stop, 1, __ATOMIC_RELEASE);
-            sem_post(&b->wake);
+            mbfb_wake(b);
         }
     }
     for (int i = 0; i < MBFB_MAX_BUSES; i++) {
@@ -357,7 +359,6 @@ void mbfb_shutdown(void)
             continue;
         pthread_join(b->worker, NULL);
         __atomic_store_n(&mbfb_buses[i], (mbfb_bus_t *)NULL, __ATOMIC_RELEASE);
-        sem_destroy(&b->wake);
         bus_free(b);
     }
     for (int i = 0; i < MBFB_MAX_PLANS; i++) {

@@ -45,12 +45,12 @@ int mbfb_build_request(uint8_t *out, int slave, int fc, int addr, int count,
     out[0] = (uint8_t)slave;
     out[1] = (uint8_t)fc;
     put16(out + 2, addr);
-    if (fc == 6) {
+    if (fc == MBFB_FC_WRITE_SINGLE) {
         put16(out + 4, values[0]);
         return 6;
     }
     put16(out + 4, count);
-    if (fc != 16)
+    if (fc != MBFB_FC_WRITE_MULTIPLE)
         return 6;
     out[6] = (uint8_t)(2 * count);
     for (int i = 0; i < count; i++)
@@ -61,7 +61,7 @@ int mbfb_build_request(uint8_t *out, int slave, int fc, int addr, int count,
 /* Length of the good reply frame to a request frame. */
 int mbfb_reply_len(const uint8_t *req)
 {
-    if (req[1] == 3 || req[1] == 4)
+    if (mbfb_fc_is_read(req[1]))
         return 3 + 2 * ((req[4] << 8) | req[5]);
     return 6; /* FC06 echo, FC16 address + count */
 }
@@ -73,16 +73,16 @@ int mbfb_check_reply(const uint8_t *req, const uint8_t *rsp, int len)
 
     if (len < 3 || rsp[0] != req[0])
         return MBFB_E_BADREPLY;
-    if (rsp[1] == (fc | 0x80))
+    if (rsp[1] == (fc | MBFB_EXCEPTION_BIT))
         return (len == 3 && rsp[2] != 0) ? MBFB_E_EXCEPTION_BASE + rsp[2] : MBFB_E_BADREPLY;
     if (rsp[1] != fc || len != mbfb_reply_len(req))
         return MBFB_E_BADREPLY;
     switch (fc) {
-    case 3:
-    case 4:
+    case MBFB_FC_READ_HOLDING:
+    case MBFB_FC_READ_INPUT:
         return rsp[2] == len - 3 ? MBFB_OK : MBFB_E_BADREPLY;
-    case 6:  /* echo of address and value */
-    case 16: /* echo of address and count */
+    case MBFB_FC_WRITE_SINGLE:   /* echo of address and value */
+    case MBFB_FC_WRITE_MULTIPLE: /* echo of address and count */
         return memcmp(rsp + 2, req + 2, 4) == 0 ? MBFB_OK : MBFB_E_BADREPLY;
     default:
         return MBFB_E_BADREPLY;
@@ -95,16 +95,16 @@ int mbfb_check_args(int slave, int fc, int addr, int count, const uint16_t *valu
     if (addr < 0 || addr >= MBFB_ADDR_SPACE)
         return MBFB_E_INVAL;
     switch (fc) {
-    case 3:
-    case 4:
+    case MBFB_FC_READ_HOLDING:
+    case MBFB_FC_READ_INPUT:
         if (slave == 0 || count < 1 || count > MBFB_MAX_READ)
             return MBFB_E_INVAL; /* broadcast reads get no reply: refused */
         break;
-    case 6:
+    case MBFB_FC_WRITE_SINGLE:
         if (count != 1 || values == NULL)
             return MBFB_E_INVAL;
         break;
-    case 16:
+    case MBFB_FC_WRITE_MULTIPLE:
         if (count < 1 || count > MBFB_MAX_WRITE || values == NULL)
             return MBFB_E_INVAL;
         break;
@@ -133,11 +133,11 @@ static int rtu_reply_len(const uint8_t *b, int n)
     int len;
     if (n < 5)
         return 0;
-    if (b[1] & 0x80)
+    if (b[1] & MBFB_EXCEPTION_BIT)
         len = 5;
-    else if (b[1] == 3 || b[1] == 4)
+    else if (mbfb_fc_is_read(b[1]))
         len = 3 + b[2] + 2;
-    else if (b[1] == 6 || b[1] == 16)
+    else if (mbfb_fc_is_write(b[1]))
         len = 8;
     else
         return 0;

@@ -9,7 +9,6 @@
 #define MBFB_INTERNAL_H
 
 #include <pthread.h>
-#include <semaphore.h>
 #include <stddef.h>
 #include <stdint.h>
 #include <time.h>
@@ -28,6 +27,23 @@ extern "C" {
 #define MBFB_MAX_BAUD      4000000 /* the fastest rate a Linux UART driver offers    */
 #define MBFB_MAX_UNIT      255  /* Modbus TCP unit identifiers                    */
 #define MBFB_ADDR_SPACE    0x10000 /* register addresses 0..0xFFFF                 */
+#define MBFB_EXCEPTION_BIT 0x80 /* set in the function code of an exception reply  */
+
+/** Is fc a read (MBFB_FC_READ_HOLDING, MBFB_FC_READ_INPUT)? */
+static inline int mbfb_fc_is_read(int fc)
+{
+    return fc == MBFB_FC_READ_HOLDING || fc == MBFB_FC_READ_INPUT;
+}
+/** Is fc a write (MBFB_FC_WRITE_SINGLE, MBFB_FC_WRITE_MULTIPLE)? */
+static inline int mbfb_fc_is_write(int fc)
+{
+    return fc == MBFB_FC_WRITE_SINGLE || fc == MBFB_FC_WRITE_MULTIPLE;
+}
+/** The other read function: input registers for holding ones and back. */
+static inline int mbfb_fc_other_read(int fc)
+{
+    return fc == MBFB_FC_READ_HOLDING ? MBFB_FC_READ_INPUT : MBFB_FC_READ_HOLDING;
+}
 
 /* ---- sizes of this library -------------------------------------------------- */
 #define MBFB_MAX_BUSES     16   /* 4 bits of a request handle                     */
@@ -52,8 +68,6 @@ extern "C" {
 #define MBFB_PROBE_SHARE     10
 #define MBFB_TURNAROUND_US   10000 /* after a broadcast: SetPro processing max 10 ms */
 #define MBFB_PROCESSING_US   10000 /* device processing time used in timeouts      */
-#define MBFB_LISTEN_SLICE_US 5000 /* idle with a device out of step: the worker listens
-                                     to the port, and looks for new posts this often */
 #define MBFB_QUIET_LIMIT_T   3  /* a line that never falls silent is waited for at most
                                    the silence + this many response timeouts         */
 /* A reply later than this after its request is assumed impossible: an outstanding
@@ -282,6 +296,21 @@ typedef struct mbfb_snapbuf {
     int nwords;              /* words[0..nwords) written (the items' words)       */
 } mbfb_snapbuf_t;
 
+/** The slow tier of a plan (MBFB_TIER_SLOW items: a device's settings). It is due every
+ *  slow period, and whenever its generation moves: the one way to make it due at once,
+ *  taken by mbfb_plan_invalidate and mbfb_plan_set. A slow read made for a new generation
+ *  is owed to the scan: every refresh reads it again until a take reaches a snapshot
+ *  holding it (refreshes may outpace scans). */
+typedef struct mbfb_slow {
+    uint32_t gen;            /* atomic: bumped by mbfb_plan_invalidate and, inside the
+                                settings' sequence lock, by mbfb_plan_set             */
+    /* worker only */
+    uint32_t read_gen;       /* gen of the last refresh that read the slow tier      */
+    uint32_t owed_seq;       /* seq of the first snapshot of a read owed to the scan,
+                                0 = none                                             */
+    int64_t next_us;         /* when the slow period makes it due again              */
+} mbfb_slow_t;
+
 typedef struct mbfb_plan {
     int dev, bus;            /* set once at mbfb_plan_open                         */
     /* settings (scan writes, worker reads; all atomic) */
@@ -289,17 +318,12 @@ typedef struct mbfb_plan {
     int running;             /* 1 after mbfb_plan_set, 0 after mbfb_plan_stop      */
     int n, period_ms, slow_ms;
     mbfb_plan_item_t items[MBFB_PLAN_MAX_ITEMS];
-    uint32_t inval_gen;      /* atomic: mbfb_plan_invalidate count                */
     uint32_t taken;          /* atomic: seq of the snapshot mbfb_plan_take copied last */
+    mbfb_slow_t slow;        /* the slow tier (gen: scan; the rest: worker)        */
     /* worker only */
     uint32_t cfg_seen;       /* cfg_seq of the settings of the last refresh        */
-    int64_t last_start_us, next_slow_us;
+    int64_t last_start_us;
     int failed;              /* the last refresh failed                           */
-    uint32_t slow_gen;       /* inval_gen when the slow tier was last read         */
-    int slow_done;           /* the slow tier was read since the last plan_set     */
-    uint32_t slow_owed;      /* seq of a snapshot with a slow read the scan is owed
-                                (the first, or one for an invalidation), 0 = none: the
-                                slow tier stays due until a take reaches it          */
     uint32_t seq;            /* refreshes published                               */
     int back;                /* worker only: the buffer it fills next (0..2)      */
     /* snapshots */
@@ -346,7 +370,10 @@ typedef struct mbfb_bus {
                                 worker ends the attempt on the wire, starts no other,
                                 closes the port and returns (README "Lifetime")      */
     uint32_t post_seq;       /* atomic: next sequence number                      */
-    sem_t wake;              /* posted by mbfb_post / mbfb_plan_set               */
+    int wake_fd;             /* eventfd the worker waits on (mbfb_wake.c), -1: none */
+    uint32_t wake_pending;   /* atomic: posts since the worker last looked            */
+    int waiting;             /* atomic: the worker waits on wake_fd: the first post since
+                                it looked writes wake_fd (mbfb_wake.c)               */
     pthread_t worker;
     int index;
     int n_plans;             /* atomic: plans[0..n_plans) published               */
@@ -368,15 +395,89 @@ void mbfb_slot_finish(mbfb_slot_t *s, int result);     /* ACTIVE -> DONE/FAILED 
 void mbfb_slot_fail_queued(mbfb_bus_t *bus, int result);
 
 /* worker side of the plans (mbfb_plan.c) */
+/** A plan's settings as the worker copies them at the start of a refresh. */
+typedef struct mbfb_plan_cfg {
+    mbfb_plan_item_t items[MBFB_PLAN_MAX_ITEMS];
+    int n, period_ms, slow_ms;
+    int nwords;              /* the items' words in all (a snapshot's length)       */
+    uint32_t seq;            /* cfg_seq of this copy                                */
+    uint32_t slow_gen;       /* the slow tier's generation, read inside the lock    */
+} mbfb_plan_cfg_t;
+
 /** Copy a plan's settings (sequence lock); 0 if it is not running. */
-int  mbfb_plan_read_cfg(mbfb_plan_t *p, mbfb_plan_item_t *items, int *n, int *period_ms,
-                        int *slow_ms, uint32_t *cfg_seq);
+int  mbfb_plan_read_cfg(mbfb_plan_t *p, mbfb_plan_cfg_t *cfg);
 /** Publish refresh number p->seq + 1 (words: the items' words in order). */
 void mbfb_plan_publish(mbfb_plan_t *p, int result, uint32_t gen, uint32_t read_mask,
                        const uint16_t *words, int nwords);
 
 /* the worker (mbfb_worker.c) */
 void *mbfb_worker_main(void *arg);
+/** Every running plan of the bus ends its refresh now with `err` (the port could not be
+ *  opened); none is due again before bus->reopen_us. */
+void mbfb_plans_no_port(mbfb_bus_t *bus, int64_t now, int err);
+
+/* waking the worker (mbfb_wake.c): an eventfd, so that the idle worker waits on the port
+ * and on posts in one ppoll and uses no CPU until one of them comes */
+/** Create bus->wake_fd. 0, or -1 when the system has no eventfd left. */
+int  mbfb_wake_open(mbfb_bus_t *bus);
+/** Close bus->wake_fd (the worker has stopped). */
+void mbfb_wake_close(mbfb_bus_t *bus);
+/** Scan side (post, plan_set, shutdown): wake the worker. Never blocks; a write() only
+ *  when the worker waits and no post before this one since it looked has woken it. */
+void mbfb_wake(mbfb_bus_t *bus);
+/** Worker: take the posts made so far (the checks after this call see each of them). */
+void mbfb_wake_take(mbfb_bus_t *bus);
+/** Worker: wait until `until` (monotonic us; INT64_MAX: no limit) or a wake, or, with
+ *  port_fd >= 0, input on the port. 1 when the port has input, else 0. */
+int  mbfb_wake_wait(mbfb_bus_t *bus, int port_fd, int64_t until);
+
+/* one request of a device (mbfb_attempt.c) */
+/** Request of a device as the worker runs it: a posted one or a plan read. */
+typedef struct mbfb_request {
+    int devidx, fc, addr, count, policy;
+    const uint16_t *vals;    /* writes                                               */
+    uint16_t *out;           /* reads: count registers                               */
+    int write_sent;          /* out: the write itself went on the wire (maybe applied) */
+} mbfb_request_t;
+/** Run one request: back-off, the port, its attempts (mbfb_attempt.c). Returns MBFB_OK or
+ *  a positive MBFB_E_*; MBFB_E_NOPORT, _BAUD, _DIRECTION: the port did not open and every
+ *  plan of the bus has published that (mbfb_plans_no_port). */
+int  mbfb_device_request(mbfb_bus_t *bus, mbfb_request_t *request);
+/** Wait for a silent line before an attempt to `slave`, hearing late replies meanwhile.
+ *  0 or -MBFB_E_PORTLOST. */
+int  mbfb_wait_quiet(mbfb_bus_t *bus, int slave);
+/** Sum the line's busy time of the last second into bus->busy_permille; returns when the
+ *  window holds no busy time any more (INT64_MAX: none now). */
+int64_t mbfb_busy_update(mbfb_bus_t *bus, int64_t now);
+/** The device answered (or was heard): out of back-off, its failures count from 0. */
+void mbfb_end_backoff(mbfb_dev_t *dev);
+
+/* late replies and resync reads (mbfb_resync.c) */
+/** Modbus exception codes a request draws each time it is sent, as the device's map does
+ *  not change: illegal function, data address, data value. The others (device failure,
+ *  acknowledge, busy) may answer any request. */
+#define MBFB_EXC_FIXED_MAX 3
+/** A whole, checked reply frame f heard outside its request: retire the outstanding
+ *  shape of a device of this bus that it fits; 1 if one was retired, else 0. */
+int  mbfb_retire_heard(mbfb_bus_t *bus, const uint8_t *f, int len);
+/** Late replies among the bytes heard in the silence before a request (bus->heard). */
+void mbfb_hear_late_replies(mbfb_bus_t *bus);
+/** After a failed attempt (fc, addr, count, vals) sent at t: out of step (serial lines),
+ *  its reply shape outstanding. */
+void mbfb_out_of_step(mbfb_bus_t *bus, mbfb_dev_t *dev, int fc, int addr, int count,
+                      const uint16_t *vals, int64_t t);
+/** A resync read was answered: in step, nothing outstanding, no settle owed for it. */
+void mbfb_in_step(mbfb_bus_t *bus, mbfb_dev_t *dev);
+/** Remember a range that read well (most recent first). */
+void mbfb_remember_read(mbfb_dev_t *dev, int fc, int addr, int count);
+/** Could an outstanding request still be answered with exception `code` (0: any) of fc? */
+int  mbfb_exception_outstanding(const mbfb_dev_t *dev, int fc, int code);
+/** The resync read for a request (fc, addr, count; readback: a write of unknown outcome)
+ *  of device devidx: 1 with *r, or 0 when the outstanding set is full. */
+int  mbfb_pick_resync(mbfb_bus_t *bus, int devidx, int fc, int addr, int count,
+                      int readback, mbfb_range_t *r);
+/** The probe of a device in back-off: 1 with *r, or 0 when no read shape is outstanding. */
+int  mbfb_pick_probe(const mbfb_dev_t *dev, mbfb_range_t *r);
 
 /** The bus is being shut down (mbfb_shutdown, the library's unload): no new attempt. */
 static inline int mbfb_stopping(const mbfb_bus_t *bus)

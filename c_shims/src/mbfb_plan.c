@@ -64,7 +64,7 @@ int mbfb_plan_open(int dev)
     return rc;
 }
 
-/* Check a plan's items: fc 3/4, counts, address range, tiers, words in all. */
+/* Check a plan's items: reads, counts, address range, tiers, words in all. */
 static int check_items(const mbfb_plan_item_t *items, int n)
 {
     int words = 0;
@@ -72,7 +72,7 @@ static int check_items(const mbfb_plan_item_t *items, int n)
         return MBFB_E_INVAL;
     for (int i = 0; i < n; i++) {
         const mbfb_plan_item_t *it = &items[i];
-        if ((it->fc != 3 && it->fc != 4) || it->count < 1 || it->count > MBFB_MAX_READ ||
+        if (!mbfb_fc_is_read(it->fc) || it->count < 1 || it->count > MBFB_MAX_READ ||
             it->addr < 0 || it->addr + it->count > MBFB_ADDR_SPACE ||
             it->tier < MBFB_TIER_EVERY || it->tier > MBFB_TIER_FAST)
             return MBFB_E_INVAL;
@@ -81,7 +81,16 @@ static int check_items(const mbfb_plan_item_t *items, int n)
     return words > MBFB_PLAN_MAX_WORDS ? MBFB_E_INVAL : MBFB_OK;
 }
 
-/* Write the settings inside the sequence lock (one writer per plan: its block). */
+/* Make the slow tier due at once: its generation moves (the one way; see mbfb_slow_t).
+ * Returns the new generation. */
+static uint32_t slow_invalidate(mbfb_plan_t *p)
+{
+    return __atomic_add_fetch(&p->slow.gen, 1u, __ATOMIC_ACQ_REL);
+}
+
+/* Write the settings inside the sequence lock (one writer per plan: its block). New
+ * settings (items != NULL) invalidate the slow tier inside the lock, so the worker copies
+ * settings and generation as one. */
 static void write_cfg(mbfb_plan_t *p, const mbfb_plan_item_t *items, int n, int period_ms,
                       int slow_ms, int running)
 {
@@ -97,6 +106,7 @@ static void write_cfg(mbfb_plan_t *p, const mbfb_plan_item_t *items, int n, int 
         ST(&p->n, n);
         ST(&p->period_ms, period_ms);
         ST(&p->slow_ms, slow_ms);
+        (void)slow_invalidate(p);
     }
     ST(&p->running, running);
     __atomic_store_n(&p->cfg_seq, s + 2, __ATOMIC_RELEASE);
@@ -115,7 +125,7 @@ int mbfb_plan_set(int plan, const mbfb_plan_item_t *items, int n, int period_ms,
     write_cfg(p, items, n, period_ms, slow_period_ms, 1);
     b = __atomic_load_n(&mbfb_buses[p->bus], __ATOMIC_ACQUIRE);
     if (b != NULL)
-        sem_post(&b->wake); /* a settings change, not steady state: wake the worker */
+        mbfb_wake(b); /* a settings change, not steady state: wake the worker */
     return 0;
 }
 
@@ -129,13 +139,13 @@ int mbfb_plan_stop(int plan)
     return 0;
 }
 
-/* Bump the invalidation generation; the next refresh reads the slow tier. */
+/* The slow tier due in the next refresh that starts: its generation moves. */
 int mbfb_plan_invalidate(int plan)
 {
     mbfb_plan_t *p = plan_of(plan);
     if (p == NULL)
         return -MBFB_E_BADHANDLE;
-    return (int)((__atomic_add_fetch(&p->inval_gen, 1u, __ATOMIC_ACQ_REL)) & 0x7FFFFFFFu);
+    return (int)(slow_invalidate(p) & 0x7FFFFFFFu);
 }
 
 /* Nothing new: one atomic load and a compare. A new snapshot: take the middle buffer
@@ -157,35 +167,37 @@ int mbfb_plan_take(int plan, uint32_t *seq, mbfb_snap_t *out)
         return 0; /* nothing newer than the caller's */
     memcpy(out, &b->snap, offsetof(mbfb_snap_t, words) + (size_t)b->nwords * sizeof out->words[0]);
     *seq = b->snap.seq;
-    __atomic_store_n(&p->taken, b->snap.seq, __ATOMIC_RELEASE); /* the worker's slow_owed */
+    __atomic_store_n(&p->taken, b->snap.seq, __ATOMIC_RELEASE); /* the worker's slow.owed_seq */
     return 1;
 }
 
 /* ---- worker side ------------------------------------------------------------ */
 
-int mbfb_plan_read_cfg(mbfb_plan_t *p, mbfb_plan_item_t *items, int *n, int *period_ms,
-                       int *slow_ms, uint32_t *cfg_seq)
+int mbfb_plan_read_cfg(mbfb_plan_t *p, mbfb_plan_cfg_t *cfg)
 {
     uint32_t s1, s2;
     int running;
     do {
         s1 = __atomic_load_n(&p->cfg_seq, __ATOMIC_ACQUIRE);
         running = LD(&p->running);
-        *n = LD(&p->n);
-        if (*n < 0 || *n > MBFB_PLAN_MAX_ITEMS)
-            *n = 0; /* torn: retried below */
-        for (int i = 0; i < *n; i++) {
-            items[i].fc = LD(&p->items[i].fc);
-            items[i].addr = LD(&p->items[i].addr);
-            items[i].count = LD(&p->items[i].count);
-            items[i].tier = LD(&p->items[i].tier);
+        cfg->n = LD(&p->n);
+        if (cfg->n < 0 || cfg->n > MBFB_PLAN_MAX_ITEMS)
+            cfg->n = 0; /* torn: retried below */
+        cfg->nwords = 0;
+        for (int i = 0; i < cfg->n; i++) {
+            cfg->items[i].fc = LD(&p->items[i].fc);
+            cfg->items[i].addr = LD(&p->items[i].addr);
+            cfg->items[i].count = LD(&p->items[i].count);
+            cfg->items[i].tier = LD(&p->items[i].tier);
+            cfg->nwords += cfg->items[i].count;
         }
-        *period_ms = LD(&p->period_ms);
-        *slow_ms = LD(&p->slow_ms);
+        cfg->period_ms = LD(&p->period_ms);
+        cfg->slow_ms = LD(&p->slow_ms);
+        cfg->slow_gen = LD(&p->slow.gen);
         s2 = LD(&p->cfg_seq);
     } while ((s1 & 1) || s1 != s2);
-    *cfg_seq = s1;
-    return running && *n > 0;
+    cfg->seq = s1;
+    return running && cfg->n > 0;
 }
 
 /* Fill the buffer the worker owns (plain stores: nobody else can hold it), then swap

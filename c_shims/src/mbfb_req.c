@@ -5,8 +5,8 @@
  * Lock-free: every slot has one state word, (generation << 4) | MBFB_SLOT_*, changed
  * only by __atomic compare-and-swap (GCC/Clang builtins: the same code compiles as C
  * and as C++11, which <stdatomic.h> does not). Producers claim a FREE slot by CAS, so
- * any number of threads may post. The worker is woken with sem_post, which neither
- * blocks nor allocates. A request handle carries the slot's generation, so a handle
+ * any number of threads may post. The worker is woken with mbfb_wake (mbfb_wake.c),
+ * which neither blocks nor allocates. A request handle carries the slot's generation, so a handle
  * that was taken or cancelled is stale and gives -MBFB_E_BADHANDLE.
  *
  * handle - 1 = generation << 10 | bus << 6 | slot
@@ -86,12 +86,12 @@ int mbfb_post_write(int dev, int fc, int addr, int count, const uint16_t *values
     s->policy = policy;
     s->result = 0;
     s->nvals = 0;
-    if (fc == 6 || fc == 16)
+    if (mbfb_fc_is_write(fc))
         memcpy(s->values, values, (size_t)count * sizeof values[0]);
     __atomic_store_n(&s->seq, __atomic_fetch_add(&bus->post_seq, 1u, __ATOMIC_RELAXED),
                      __ATOMIC_RELAXED);
     __atomic_store_n(&s->state, WORD(gen, MBFB_SLOT_QUEUED), __ATOMIC_RELEASE);
-    sem_post(&bus->wake);
+    mbfb_wake(bus);
     return make_handle(d->bus, i, gen);
 }
 
