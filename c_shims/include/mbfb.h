@@ -14,7 +14,9 @@
  * mbfb_plan_set/_stop/_invalidate/_take, mbfb_dev_diag, mbfb_dev_diag_seq,
  * mbfb_bus_diag, mbfb_strerror) never block and never allocate; the only system call
  * they make is a write() to the bus's eventfd in mbfb_post, mbfb_post_write and
- * mbfb_plan_set, to wake the worker, and only when it is waiting (none while it is busy).
+ * mbfb_plan_set, to wake the worker, and only when it is waiting (none while it is busy),
+ * and in the mbfb_plan_take that gets a parked plan's snapshot once the PLC scans again
+ * after a stop (README "Lifetime").
  * Setup calls (mbfb_bus_open, mbfb_dev_open) may allocate and start the worker;
  * they do not wait for the port: opening happens on the worker, and a port that
  * cannot be opened makes that bus's requests end with MBFB_E_NOPORT.
@@ -72,6 +74,11 @@ extern "C" {
                                    driver has no kernel RS-485 mode, RTS cannot be set, the
                                    GPIO chip or line is missing or busy, or libgpiod (v1,
                                    libgpiod.so.2) is not installed; nothing was sent   */
+#define MBFB_E_STOPPED      16  /* not done because the PLC stopped scanning the block: no
+                                   snapshot taken for 10 periods (the plan's or the task's, at
+                                   least 2 s), its plan stopped polling (one failed snapshot,
+                                   seen when it is scanned again); no request polled or posted
+                                   on the bus for as long, a queued request was not sent   */
 #define MBFB_E_EXCEPTION_BASE 128 /* + Modbus exception code                          */
 /* Function-block input errors (st_src/): found before anything is sent.              */
 #define MBFB_E_BAD_SLAVE     200 /* SlaveId 0 for a read/monitoring block, or refused by
@@ -216,7 +223,10 @@ int mbfb_post_write(int dev, int fc, int addr, int count, const uint16_t *values
  * allows, shared fairly with the bus's other plans), and publishes each finished refresh
  * as one snapshot. Posted requests (writes) go before the next read of any plan.
  * Scan side: mbfb_plan_take costs one atomic load when nothing is new; no system call,
- * no lock, no allocation. mbfb_plan_set / _stop / _invalidate are scan-safe too.
+ * no lock, no allocation. mbfb_plan_set / _stop / _invalidate are scan-safe too. A plan
+ * whose snapshot stays untaken for 10 periods (its own or its block's scan interval, at
+ * least 2 s) stops polling until the next take (README "Lifetime"), which gets one
+ * snapshot with result MBFB_E_STOPPED.
  * One consumer per plan: a plan's snapshots are handed over in a triple buffer whose
  * reading end mbfb_plan_take holds, so call it for one plan from one thread at a time
  * (the block that opened the plan); other plans, devices and buses are independent. */

@@ -24,6 +24,7 @@ const char *mbfb_strerror(int code)
         "not repeated",
         "baud rate the serial driver cannot set exactly",
         "RS-485 direction control refused by the port, driver or GPIO line: nothing sent",
+        "not done: the PLC stopped scanning the block (plan stopped, queued request not sent)",
     };
     static const char *const exc[] = {
         "Modbus exception",

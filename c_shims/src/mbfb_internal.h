@@ -57,6 +57,15 @@ static inline int mbfb_fc_other_read(int fc)
                                    one ASCII frame of 256 bytes (':', hex, CR LF)    */
 
 /* ---- policy ----------------------------------------------------------------- */
+/* A PLC that stops scanning (README "Lifetime"): a plan whose block has not taken a
+ * snapshot for MBFB_STALE_PERIODS periods (its own, or its block's scan interval if
+ * longer), and at least MBFB_STALE_MIN_MS, stops polling until its block is scanned
+ * again; a queued request is not sent once nothing has been posted or polled on its bus
+ * for as long (the longest of its plans' bounds, at least MBFB_STALE_MIN_MS). */
+#define MBFB_STALE_PERIODS   10
+#define MBFB_STALE_MIN_MS    2000
+#define MBFB_SCAN_MAX_MS     60000 /* a longer gap between takes is a stop, not a task's
+                                      interval (the bound does not learn from it)     */
 #define MBFB_DEFAULT_RETRIES 3  /* SetPro manual 5.6: retry at least 3 times      */
 #define MBFB_OFFLINE_AFTER   3  /* consecutive failed transactions -> back-off    */
 /* A device in back-off is probed (one attempt) once per probe interval: at least
@@ -290,6 +299,8 @@ typedef struct mbfb_dev {
  * memcpy. A buffer is written only by the thread that owns it and handed over by an
  * acq_rel exchange, so there is no data race (C11) and no copy can be torn. */
 #define MBFB_SNAP_FRESH 4u  /* in mid: the middle buffer holds a snapshot not taken yet */
+#define MBFB_SNAP_PARKED 8u /* in mid: ... the failed snapshot of a plan parked for want of
+                               scans: the take that gets it wakes the worker           */
 
 typedef struct mbfb_snapbuf {
     mbfb_snap_t snap;        /* plain: owned by whoever holds the buffer's index   */
@@ -325,11 +336,25 @@ typedef struct mbfb_plan {
     int64_t last_start_us;
     int failed;              /* the last refresh failed                           */
     uint32_t seq;            /* refreshes published                               */
+    /* a block that stops scanning (mbfb_plan_parked), worker only: the scan side writes
+       nothing for it; a snapshot still FRESH in the middle buffer is one not taken */
+    int64_t untaken_us;      /* when the oldest snapshot not taken yet was published
+                                (0: after an unpark, no scan interval to learn from it) */
+    int64_t seen_us;         /* when a look last saw it still untaken                  */
+    int64_t scan_us;         /* the block's scan interval as the worker saw it: how long
+                                the last snapshot taken was seen untaken              */
+    int64_t stale_us;        /* a snapshot untaken this long parks the plan:
+                                MBFB_STALE_PERIODS x the longer of period and scan
+                                interval, at least MBFB_STALE_MIN_MS                 */
+    int parked;              /* 1: parked, until its MBFB_SNAP_PARKED snapshot is taken
+                                or its settings change (parked_cfg)                   */
+    uint32_t parked_cfg;     /* cfg_seq when it parked                               */
     int back;                /* worker only: the buffer it fills next (0..2)      */
     /* snapshots */
     uint32_t pub;            /* atomic: number of the newest published refresh (for
                                 benchmarks and tests; the scan reads mid)           */
-    uint32_t mid;            /* atomic: index of the middle buffer | MBFB_SNAP_FRESH */
+    uint32_t mid;            /* atomic: index of the middle buffer | MBFB_SNAP_FRESH
+                                | MBFB_SNAP_PARKED                                   */
     int front;               /* consumer only: the buffer mbfb_plan_take holds     */
     mbfb_snapbuf_t buf[3];
 } mbfb_plan_t;
@@ -374,6 +399,10 @@ typedef struct mbfb_bus {
     uint32_t wake_pending;   /* atomic: posts since the worker last looked            */
     int waiting;             /* atomic: the worker waits on wake_fd: the first post since
                                 it looked writes wake_fd (mbfb_wake.c)               */
+    uint32_t scans;          /* atomic: bumped by mbfb_post_write and mbfb_poll: the PLC is
+                                still scanning the blocks that post to this bus      */
+    uint32_t scans_seen;     /* worker only: `scans` at its last look (mbfb_slot_next), */
+    int64_t scanned_us;      /* and when it saw it change                            */
     pthread_t worker;
     int index;
     int n_plans;             /* atomic: plans[0..n_plans) published               */
@@ -406,6 +435,11 @@ typedef struct mbfb_plan_cfg {
 
 /** Copy a plan's settings (sequence lock); 0 if it is not running. */
 int  mbfb_plan_read_cfg(mbfb_plan_t *p, mbfb_plan_cfg_t *cfg);
+/** Has the plan's block stopped taking snapshots (one untaken for p->stale_us, kept here,
+ *  on the worker's clock `now`)? Then it is parked: 1, and once, when it parks, a failed
+ *  snapshot (MBFB_E_STOPPED) replaces the one the block has not taken, so data from before
+ *  the stop are never taken as new. The take of that snapshot, or new settings, unpark it. */
+int  mbfb_plan_parked(mbfb_plan_t *p, int64_t now);
 /** Publish refresh number p->seq + 1 (words: the items' words in order). */
 void mbfb_plan_publish(mbfb_plan_t *p, int result, uint32_t gen, uint32_t read_mask,
                        const uint16_t *words, int nwords);

@@ -148,6 +148,26 @@ int mbfb_plan_invalidate(int plan)
     return (int)(slow_invalidate(p) & 0x7FFFFFFFu);
 }
 
+/* Wake the worker of a plan's bus (the take of a parked plan's snapshot: once a stop).
+ * Out of line and cold: the take's steady state pays nothing for it. */
+__attribute__((noinline, cold)) static void wake_worker(const mbfb_plan_t *p)
+{
+    mbfb_bus_t *bus = __atomic_load_n(&mbfb_buses[p->bus], __ATOMIC_ACQUIRE);
+    if (bus != NULL)
+        mbfb_wake(bus);
+}
+
+/* Swap the fresh middle buffer for the one the scan holds (one exchange). The snapshot of
+ * a plan parked for want of scans wakes the worker: scanned again, it runs again. Out of
+ * line: the take's "nothing new" path keeps its few registers. */
+__attribute__((noinline)) static void take_middle(mbfb_plan_t *p)
+{
+    uint32_t m = __atomic_exchange_n(&p->mid, (uint32_t)p->front, __ATOMIC_ACQ_REL);
+    p->front = (int)(m & 3u);
+    if (m & MBFB_SNAP_PARKED)
+        wake_worker(p);
+}
+
 /* Nothing new: one atomic load and a compare. A new snapshot: take the middle buffer
  * (one exchange) and copy it, which only this caller owns now, with memcpy. */
 int mbfb_plan_take(int plan, uint32_t *seq, mbfb_snap_t *out)
@@ -161,7 +181,7 @@ int mbfb_plan_take(int plan, uint32_t *seq, mbfb_snap_t *out)
         return -MBFB_E_BADHANDLE;
     /* relaxed: the exchange below is what orders the buffer's contents */
     if (__atomic_load_n(&p->mid, __ATOMIC_RELAXED) & MBFB_SNAP_FRESH)
-        p->front = (int)(__atomic_exchange_n(&p->mid, (uint32_t)p->front, __ATOMIC_ACQ_REL) & 3u);
+        take_middle(p);
     b = &p->buf[p->front];
     if (b->snap.seq == *seq)
         return 0; /* nothing newer than the caller's */
@@ -200,14 +220,71 @@ int mbfb_plan_read_cfg(mbfb_plan_t *p, mbfb_plan_cfg_t *cfg)
     return running && cfg->n > 0;
 }
 
+/* Fill the buffer the worker owns and hand it over (mbfb_plan_publish); `bits`: extra
+ * bits of mid (MBFB_SNAP_PARKED). Keeps the plan's untaken time: a snapshot published while
+ * the previous one was taken starts it; how long the worker's looks saw the previous one
+ * waiting is the block's scan interval as far as it can tell (at least that long; a wait
+ * over MBFB_SCAN_MAX_MS was a stop). */
+static void publish(mbfb_plan_t *p, int result, uint32_t gen, uint32_t read_mask,
+                    const uint16_t *words, int nwords, uint32_t bits);
+
+int mbfb_plan_parked(mbfb_plan_t *p, int64_t now)
+{
+    uint32_t mid = __atomic_load_n(&p->mid, __ATOMIC_ACQUIRE);
+    uint32_t cfg = __atomic_load_n(&p->cfg_seq, __ATOMIC_ACQUIRE);
+    int64_t every = (int64_t)__atomic_load_n(&p->period_ms, __ATOMIC_RELAXED) * 1000;
+    mbfb_plan_cfg_t c;
+    uint16_t words[MBFB_PLAN_MAX_WORDS];
+
+    if (p->parked) {
+        if ((mid & MBFB_SNAP_PARKED) && cfg == p->parked_cfg)
+            return 1; /* not scanned since (its snapshot is in the middle), same settings */
+        p->parked = 0;
+        p->seen_us = 0;
+        if (mid & MBFB_SNAP_PARKED) { /* set again: untaken from now */
+            p->untaken_us = now;
+            return 0;
+        }
+        /* scanned again (that take woke us): a slow task's interval, or a stop */
+        if (now - p->untaken_us <= (int64_t)MBFB_SCAN_MAX_MS * 1000)
+            p->scan_us = now - p->untaken_us;
+        p->untaken_us = 0;
+        return 0;
+    }
+    if (mid & MBFB_SNAP_FRESH)
+        p->seen_us = now;
+    if (p->scan_us > every)
+        every = p->scan_us;
+    p->stale_us = MBFB_STALE_PERIODS * every;
+    if (p->stale_us < (int64_t)MBFB_STALE_MIN_MS * 1000)
+        p->stale_us = (int64_t)MBFB_STALE_MIN_MS * 1000;
+    if (!(mid & MBFB_SNAP_FRESH) || now - p->untaken_us <= p->stale_us)
+        return 0; /* everything published was taken, or not long ago */
+    p->parked = 1;
+    p->parked_cfg = cfg;
+    if (!mbfb_plan_read_cfg(p, &c))
+        c.nwords = 0;
+    memset(words, 0, sizeof words);
+    publish(p, MBFB_E_STOPPED, __atomic_load_n(&p->slow.gen, __ATOMIC_ACQUIRE), 0u, words,
+            c.nwords, MBFB_SNAP_PARKED);
+    return 1;
+}
+
 /* Fill the buffer the worker owns (plain stores: nobody else can hold it), then swap
  * it with the middle one; the buffer it gets back is the next one to fill (never the
  * one the scan holds). A snapshot the scan has not taken is replaced by the newer. */
 void mbfb_plan_publish(mbfb_plan_t *p, int result, uint32_t gen, uint32_t read_mask,
                        const uint16_t *words, int nwords)
 {
-    uint32_t s = p->seq + 1;
+    publish(p, result, gen, read_mask, words, nwords, 0u);
+}
+
+static void publish(mbfb_plan_t *p, int result, uint32_t gen, uint32_t read_mask,
+                    const uint16_t *words, int nwords, uint32_t bits)
+{
+    uint32_t s = p->seq + 1, m;
     mbfb_snapbuf_t *b = &p->buf[p->back];
+    int64_t now;
 
     if (s == 0)
         s = 1; /* 0 means "none yet" */
@@ -222,8 +299,19 @@ void mbfb_plan_publish(mbfb_plan_t *p, int result, uint32_t gen, uint32_t read_m
     if (nwords > 0)
         memcpy(b->snap.words, words, (size_t)nwords * sizeof words[0]);
     b->nwords = nwords;
-    p->back = (int)(__atomic_exchange_n(&p->mid, (uint32_t)p->back | MBFB_SNAP_FRESH,
-                                        __ATOMIC_ACQ_REL) & 3u);
+    m = __atomic_exchange_n(&p->mid, (uint32_t)p->back | MBFB_SNAP_FRESH | bits,
+                            __ATOMIC_ACQ_REL);
+    p->back = (int)(m & 3u);
     __atomic_store_n(&p->pub, s, __ATOMIC_RELEASE);
     p->seq = s;
+    if (!(m & MBFB_SNAP_FRESH)) { /* the previous one was taken (or there was none) */
+        now = mbfb_now_us();
+        if (p->untaken_us != 0) /* the scan interval: at least how long it was seen waiting */
+            p->scan_us = p->seen_us > p->untaken_us &&
+                                 p->seen_us - p->untaken_us <= (int64_t)MBFB_SCAN_MAX_MS * 1000
+                             ? p->seen_us - p->untaken_us
+                             : 0;
+        p->untaken_us = now;
+        p->seen_us = 0;
+    }
 }

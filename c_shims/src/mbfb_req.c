@@ -21,6 +21,12 @@
 #define ST(w) ((w) & 15u)
 #define GEN(w) ((w) >> 4)
 #define WORD(gen, st) (((gen) << 4) | (st))
+/* A scan-side call on the bus: the PLC still scans (mbfb_slot_next's stale requests). A
+ * relaxed load and store, no locked instruction: two blocks counting at once may count
+ * one, and the worker only asks whether the count moved. */
+#define SCANNED(bus) \
+    __atomic_store_n(&(bus)->scans, __atomic_load_n(&(bus)->scans, __ATOMIC_RELAXED) + 1u, \
+                     __ATOMIC_RELAXED)
 
 /* Request handle of a slot. */
 static int make_handle(int bus, int slot, uint32_t gen)
@@ -29,7 +35,7 @@ static int make_handle(int bus, int slot, uint32_t gen)
 }
 
 /* The slot a handle names, and the generation it expects; NULL if malformed. */
-static mbfb_slot_t *slot_of(int req, uint32_t *gen)
+static mbfb_slot_t *slot_of(int req, uint32_t *gen, mbfb_bus_t **busp)
 {
     mbfb_bus_t *bus;
     uint32_t h;
@@ -41,6 +47,8 @@ static mbfb_slot_t *slot_of(int req, uint32_t *gen)
     if (bus == NULL)
         return NULL;
     *gen = h >> 10;
+    if (busp != NULL)
+        *busp = bus;
     return &bus->slots[h & (MBFB_MAX_SLOTS - 1)];
 }
 
@@ -90,6 +98,7 @@ int mbfb_post_write(int dev, int fc, int addr, int count, const uint16_t *values
         memcpy(s->values, values, (size_t)count * sizeof values[0]);
     __atomic_store_n(&s->seq, __atomic_fetch_add(&bus->post_seq, 1u, __ATOMIC_RELAXED),
                      __ATOMIC_RELAXED);
+    SCANNED(bus);
     __atomic_store_n(&s->state, WORD(gen, MBFB_SLOT_QUEUED), __ATOMIC_RELEASE);
     mbfb_wake(bus);
     return make_handle(d->bus, i, gen);
@@ -99,10 +108,12 @@ int mbfb_post_write(int dev, int fc, int addr, int count, const uint16_t *values
 int mbfb_poll(int req)
 {
     uint32_t gen, w;
-    mbfb_slot_t *s = slot_of(req, &gen);
+    mbfb_bus_t *bus = NULL;
+    mbfb_slot_t *s = slot_of(req, &gen, &bus);
 
     if (s == NULL || GEN(w = LOAD(&s->state)) != gen)
         return -MBFB_E_BADHANDLE;
+    SCANNED(bus);
     switch (ST(w)) {
     case MBFB_SLOT_QUEUED: return MBFB_REQ_QUEUED;
     case MBFB_SLOT_ACTIVE: return MBFB_REQ_ACTIVE;
@@ -116,7 +127,7 @@ int mbfb_poll(int req)
 int mbfb_take(int req, uint16_t *values, int max)
 {
     uint32_t gen, w;
-    mbfb_slot_t *s = slot_of(req, &gen);
+    mbfb_slot_t *s = slot_of(req, &gen, NULL);
     int rc;
 
     if (s == NULL || GEN(w = LOAD(&s->state)) != gen)
@@ -138,7 +149,7 @@ int mbfb_take(int req, uint16_t *values, int max)
 int mbfb_cancel(int req)
 {
     uint32_t gen, w, next;
-    mbfb_slot_t *s = slot_of(req, &gen);
+    mbfb_slot_t *s = slot_of(req, &gen, NULL);
 
     if (s == NULL)
         return -MBFB_E_BADHANDLE;
@@ -253,7 +264,29 @@ int mbfb_bus_diag(int dev, mbfb_bus_diag_t *out)
 
 /* ---- worker side ---------------------------------------------------------- */
 
-/* The oldest queued request, made ACTIVE; NULL if none. */
+/* Has nothing been posted or polled on the bus for MBFB_STALE_MIN_MS, or the longest
+ * stale bound of its plans (a slow task), on the worker's clock? Then the PLC has stopped
+ * scanning the blocks that post here: what they queued is not sent (README "Lifetime"). */
+static int bus_unscanned(mbfb_bus_t *bus)
+{
+    int64_t now = mbfb_now_us(), bound = (int64_t)MBFB_STALE_MIN_MS * 1000;
+    uint32_t scans = __atomic_load_n(&bus->scans, __ATOMIC_RELAXED);
+    int n = __atomic_load_n(&bus->n_plans, __ATOMIC_ACQUIRE);
+
+    if (scans != bus->scans_seen || bus->scanned_us == 0) {
+        bus->scans_seen = scans;
+        bus->scanned_us = now;
+    }
+    for (int i = 0; i < n; i++) { /* their bounds: kept by this worker (mbfb_plan_parked) */
+        mbfb_plan_t *p = __atomic_load_n(&bus->plans[i], __ATOMIC_ACQUIRE);
+        if (p != NULL && p->stale_us > bound)
+            bound = p->stale_us;
+    }
+    return now - bus->scanned_us > bound;
+}
+
+/* The oldest queued request, made ACTIVE; NULL if none. Requests queued by a PLC that
+ * has stopped scanning (bus_unscanned) end MBFB_E_STOPPED, not sent. */
 mbfb_slot_t *mbfb_slot_next(mbfb_bus_t *bus)
 {
     for (;;) {
@@ -272,9 +305,13 @@ mbfb_slot_t *mbfb_slot_next(mbfb_bus_t *bus)
         }
         if (best == NULL)
             return NULL;
-        if (CAS(&best->state, best_w, WORD(GEN(best_w), MBFB_SLOT_ACTIVE)))
-            return best;
-        /* cancelled meanwhile: look again */
+        /* looked at after the slot: its post's count is seen (posted before it was queued) */
+        if (CAS(&best->state, best_w, WORD(GEN(best_w), MBFB_SLOT_ACTIVE))) {
+            if (!bus_unscanned(bus))
+                return best;
+            mbfb_slot_finish(best, MBFB_E_STOPPED);
+        }
+        /* cancelled meanwhile, or not sent: look again */
     }
 }
 

@@ -80,6 +80,8 @@ static int64_t plan_due(mbfb_bus_t *bus, mbfb_plan_t *p)
     int64_t due;
     if (!__atomic_load_n(&p->running, __ATOMIC_ACQUIRE))
         return INT64_MAX;
+    if (mbfb_plan_parked(p, mbfb_now_us()))
+        return INT64_MAX; /* its block is not scanned: stopped until it is (mbfb_plan.c) */
     if (p->last_start_us == 0 || __atomic_load_n(&p->cfg_seq, __ATOMIC_ACQUIRE) != p->cfg_seen)
         due = 0;
     else

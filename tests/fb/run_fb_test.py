@@ -48,6 +48,15 @@ def sim_spec(st_path: str) -> dict:
     return spec
 
 
+def skip(reason: str) -> int:
+    """A missing toolchain: the exit code, 77 (skipped), or 1 under MBFB_REQUIRE_TOOLCHAIN=1."""
+    print(f"SKIP: {reason}")
+    if os.environ.get("MBFB_REQUIRE_TOOLCHAIN") == "1":
+        print("MBFB_REQUIRE_TOOLCHAIN=1: a missing toolchain is a failure")
+        return 1
+    return SKIP
+
+
 def main() -> int:
     ap = argparse.ArgumentParser()
     ap.add_argument("--exe")
@@ -64,11 +73,7 @@ def main() -> int:
     ap.add_argument("--timeout", type=float, default=400.0)
     args = ap.parse_args()
     if args.skip is not None:
-        print(f"SKIP: {args.skip}")
-        if os.environ.get("MBFB_REQUIRE_TOOLCHAIN") == "1":
-            print("MBFB_REQUIRE_TOOLCHAIN=1: a missing toolchain is a failure")
-            return 1
-        return SKIP
+        return skip(args.skip)
     from simctl import Simulator  # tools/sim/simctl.py
 
     spec = sim_spec(args.st)

@@ -488,9 +488,16 @@ static void no_port(void)
     for (int i = 0; i < NP_PLANS; i++)
         CHECK_EQ(mbfb_plan_set(np_plan[i], it, 1 + i % 2, 0, 0), 0);
     /* wait (at most 60 s: a loaded machine) for 3 passes after the one in which every plan
-     * had been started and had failed once */
+     * had been started and had failed once, scanning meanwhile (a plan not scanned for 2 s
+     * stops: c_shims README "Lifetime"): every snapshot NOPORT, nothing valid */
     end = t0 + 60000000;
     while (t_now_us() < end) {
+        for (int i = 0; i < NP_PLANS; i++)
+            while (mbfb_plan_take(np_plan[i], &seq[i], &s) == 1) {
+                CHECK_EQ(s.result, MBFB_E_NOPORT);
+                CHECK_EQ(s.read_mask, 0u);
+                CHECK_EQ(s.words[0], 0);
+            }
         tries = __atomic_load_n(&np_tries, __ATOMIC_ACQUIRE);
         for (int k = first < 0 ? 0 : first; first < 0 && k < tries && k < NP_TRIES; k++) {
             int all = 1;

@@ -7,6 +7,8 @@
                                                as Runtime v4's Makefile.strucpp does, dlopen'ed
   run_strucpp.py gap     V4_DIR GAP.st         the gap still there (STruC++ still refuses it)
   run_strucpp.py fb      BUILD_DIR TARGET EXE T.st   one tests/fb program under STruC++
+  run_strucpp.py unload  BUILD_DIR TARGET HOST SO ST  tests/fb/unload's program under STruC++,
+                                               loaded and unloaded 20 times
   run_strucpp.py skip    REASON                skip (exit 77) with a reason
 
 Exit 77 = skipped (no Node/npm/STruC++ source; MBFB_STRUCPP_REASON), except under
@@ -208,6 +210,21 @@ def cmd_fb(build_dir, target, exe, st):
     sys.exit(subprocess.call([sys.executable, runner, "--exe", exe, "--st", st]))
 
 
+def cmd_unload(build_dir, target, host, so, st):
+    """The unload program (tests/fb/unload) under STruC++: build its shared object, then load and
+    unload it 20 times like fb_unload does the matiec one."""
+    need(os.path.join(build_dir, "v4"))
+    rc, out = build(build_dir, target)
+    if rc:
+        print(out[-6000:])
+        print("FAIL: tests/fb/unload/unload.st does not build under STruC++ as a shared object")
+        sys.exit(1)
+    driver = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "fb",
+                          "unload", "test_unload_program.py")
+    sys.exit(subprocess.call([sys.executable, driver, "--host", host, "--so", so, "--st", st,
+                              "--cycles", "20"]))
+
+
 def cmd_translate(translate):
     """translate.py on small inputs: the {external} form of each pragma form, and a pragma in
     another form refused in one line (exit 2). No Node needed."""
@@ -246,6 +263,8 @@ def main():
         return
     if a and a[0] == "fb" and len(a) == 5:
         cmd_fb(*a[1:])
+    if a and a[0] == "unload" and len(a) == 6:
+        cmd_unload(*a[1:])
     if not a or a[0] not in ("build", "layout", "gap", "skip"):
         print("usage: run_strucpp.py build BUILD_DIR | layout V4_DIR | gap V4_DIR GAP.st | skip REASON")
         sys.exit(2)
