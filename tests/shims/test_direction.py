@@ -3,6 +3,8 @@ for RTU, ASCII and RTU without CRC, against the paced simulator, the shims switc
 GPIO line around every request (up before its first byte by the set delay, down after its last
 byte has left and before the device's reply starts), or put the port into the kernel's RS-485
 mode once; a port or library that refuses the mode gives MBFB_E_DIRECTION (15) and no byte.
+GPIO through each libgpiod API: the double is built for libgpiod 1 (soname libgpiod.so.2) and
+for libgpiod 2 (libgpiod.so.3), and the log names the API the shims used.
 
 The master runs in a child process under the double, through the shims' shared library
 (tools/commission/shims.py); the double records with the shims' clock (CLOCK_MONOTONIC)."""
@@ -20,7 +22,9 @@ import line_edges  # noqa: E402
 from shims import E_DIRECTION, E_INVAL  # noqa: E402
 from simctl import Simulator  # noqa: E402
 
-DOUBLE = os.environ.get("MBFB_LINEDOUBLE", "")
+DOUBLE = os.environ.get("MBFB_LINEDOUBLE", "")      # libgpiod 1's API (libgpiod.so.2)
+DOUBLE2 = os.environ.get("MBFB_LINEDOUBLE2", "")    # libgpiod 2's API (libgpiod.so.3)
+DOUBLES = {1: DOUBLE, 2: DOUBLE2}
 CHIP = "gpiochip-double"
 BAUD = 9600
 
@@ -50,24 +54,25 @@ with Shims.load() as lib:
     print(json.dumps(out))
 """
 
-pytestmark = pytest.mark.skipif(not os.path.isfile(DOUBLE),
-                                reason="MBFB_LINEDOUBLE (the test double's library) not built")
+pytestmark = pytest.mark.skipif(not (os.path.isfile(DOUBLE) and os.path.isfile(DOUBLE2)),
+                                reason="MBFB_LINEDOUBLE / MBFB_LINEDOUBLE2 (the test double's "
+                                       "libraries) not built")
 
 
 def run_master(tmp_path, port, framing, mode, chip=CHIP, refuse=None, active_low=False,
-               before=0, after=0, n=4, double=True):
-    """The master in a child process (under the test double unless double=False): its
-    results and the double's log."""
+               before=0, after=0, n=4, double=True, api=1, offset=17, double_chip=CHIP):
+    """The master in a child process (under the test double for libgpiod `api` unless
+    double=False): its results and the double's log."""
     line = LINES[framing]
-    log = tmp_path / f"{framing}-{mode}.log"
+    log = tmp_path / f"{framing}-{mode}-v{api}.log"
     env = dict(os.environ)
     if double:
-        env.update(LD_PRELOAD=DOUBLE, LINEDOUBLE_PORT=port, LINEDOUBLE_LOG=str(log),
-                   LINEDOUBLE_GPIOCHIP=CHIP)
+        env.update(LD_PRELOAD=DOUBLES[api], LINEDOUBLE_PORT=port, LINEDOUBLE_LOG=str(log),
+                   LINEDOUBLE_GPIOCHIP=double_chip)
     if refuse:
         env["LINEDOUBLE_REFUSE"] = refuse
     arg = dict(port=port, baud=BAUD, stop=line["stop"], framing=framing, mode=mode,
-               active_low=active_low, before=before, after=after, chip=chip, line=17,
+               active_low=active_low, before=before, after=after, chip=chip, line=offset,
                read=line["read"], write=line["write"], n=n)
     proc = subprocess.run([sys.executable, "-c", MASTER, os.path.join(ROOT, "tools", "commission"),
                            json.dumps(arg)], env=env, capture_output=True, text=True, timeout=120)
@@ -77,14 +82,16 @@ def run_master(tmp_path, port, framing, mode, chip=CHIP, refuse=None, active_low
 
 
 @pytest.mark.parametrize("framing", ["rtu", "ascii", "nocrc"])
-@pytest.mark.parametrize("mode,active_low,before,after", [
-    ("rts", False, 0, 0), ("rts", True, 500, 200), ("gpio", False, 300, 0), ("gpio", True, 0, 0),
-    ("kernel", False, 1500, 0)])
-def test_edges_frame_every_request(tmp_path, framing, mode, active_low, before, after):
+@pytest.mark.parametrize("mode,active_low,before,after,api", [
+    ("rts", False, 0, 0, 1), ("rts", True, 500, 200, 1),
+    ("gpio", False, 300, 0, 1), ("gpio", True, 0, 0, 1),
+    ("gpio", False, 300, 0, 2), ("gpio", True, 0, 0, 2),
+    ("kernel", False, 1500, 0, 1)])
+def test_edges_frame_every_request(tmp_path, framing, mode, active_low, before, after, api):
     line = LINES[framing]
     with Simulator([line["device"]], fmt=line["fmt"], baud=BAUD, pace=True) as sim:
         out, log = run_master(tmp_path, sim.port, framing, mode, active_low=active_low,
-                              before=before, after=after)
+                              before=before, after=after, api=api)
     assert out["bus"] >= 0
     assert [rc for rc, _ in out["reads"]] == [0] * 4, out     # every read answered
     if line["write"]:
@@ -92,18 +99,49 @@ def test_edges_frame_every_request(tmp_path, framing, mode, active_low, before, 
     char_us = 1e6 * (1 + 8 + line["stop"]) / BAUD
     got = line_edges.check(log, mode, char_us, before, after, active_low)
     assert got["requests"] >= 4
+    assert "misuse" not in log, log                            # the API used by its rules
+    if mode == "gpio":                                         # one request, through the API asked
+        reqs = [ln.split()[2:] for ln in log.splitlines() if ln.split()[1] == "gpioreq"]
+        assert reqs == [["mbfb", "17", str(int(active_low)), f"v{api}"]], reqs
+
+
+@pytest.mark.parametrize("chip,double_chip", [
+    ("gpiochip-double", "gpiochip-double"),      # a name under /dev
+    ("/dev/gpiochip-double", "gpiochip-double"),  # a path
+    ("7", "gpiochip7")])                          # a number: /dev/gpiochip7
+def test_gpio_chip_named_each_way_v2(tmp_path, chip, double_chip):
+    """libgpiod 1 finds a chip with its own gpiod_chip_open_lookup; libgpiod 2 opens paths
+    only, so the shims resolve the name, path or number (or a label, by the labels of the
+    chips under /dev) to the path libgpiod 2 is given."""
+    api = 2
+    with Simulator([LINES["rtu"]["device"]], fmt="8N2", baud=BAUD) as sim:
+        out, log = run_master(tmp_path, sim.port, "rtu", "gpio", chip=chip, n=1, api=api,
+                              double_chip=double_chip)
+    assert [rc for rc, _ in out["reads"]] == [0], out
+    assert f"gpioreq mbfb 17 0 v{api}" in log and "misuse" not in log, log
+
+
+@pytest.mark.parametrize("api", [1, 2])
+def test_gpio_line_missing_sends_nothing(tmp_path, api):
+    with Simulator([LINES["rtu"]["device"]], fmt="8N2", baud=BAUD) as sim:
+        out, log = run_master(tmp_path, sim.port, "rtu", "gpio", n=2, api=api, offset=40)
+        frames = sim.log()
+    assert [rc for rc, _ in out["reads"]] == [E_DIRECTION] * 2
+    assert "write" not in log.split() and "gpioreq" not in log and frames == []
 
 
 @pytest.mark.parametrize("framing", ["rtu", "ascii", "nocrc"])
-@pytest.mark.parametrize("mode,chip,refuse", [
-    ("rts", CHIP, "rts"),            # a port without modem lines
-    ("kernel", CHIP, "rs485"),       # a driver without RS-485 mode
-    ("kernel", CHIP, "polarity"),    # one that drops the polarity asked for
-    ("gpio", "gpiochip-none", None)])  # no such GPIO chip
-def test_refused_mode_sends_nothing(tmp_path, framing, mode, chip, refuse):
+@pytest.mark.parametrize("mode,chip,refuse,api", [
+    ("rts", CHIP, "rts", 1),            # a port without modem lines
+    ("kernel", CHIP, "rs485", 1),       # a driver without RS-485 mode
+    ("kernel", CHIP, "polarity", 1),    # one that drops the polarity asked for
+    ("gpio", "gpiochip-none", None, 1),  # no such GPIO chip
+    ("gpio", "gpiochip-none", None, 2)])
+def test_refused_mode_sends_nothing(tmp_path, framing, mode, chip, refuse, api):
     line = LINES[framing]
     with Simulator([line["device"]], fmt=line["fmt"], baud=BAUD) as sim:
-        out, log = run_master(tmp_path, sim.port, framing, mode, chip=chip, refuse=refuse, n=2)
+        out, log = run_master(tmp_path, sim.port, framing, mode, chip=chip, refuse=refuse, n=2,
+                              api=api)
         frames = sim.log()
     assert out["bus"] >= 0
     assert [rc for rc, _ in out["reads"]] == [E_DIRECTION] * 2
