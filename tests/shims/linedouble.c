@@ -24,6 +24,8 @@
  * libgpiod 2 opens, with label $LINEDOUBLE_GPIOLABEL) and has lines 0..31; any other does not.
  * Calls that break the API's rules (a line set that was not requested, a request that is not
  * one output line) fail and are logged as "misuse WHAT".
+ * With LINEDOUBLE_GPIOD=0 it has no libgpiod functions; gpiocdev_double.c, linked with it,
+ * stands in for the kernel's GPIO character device under the real libgpiod instead.
  * $LINEDOUBLE_REFUSE=rts|rs485 makes that ioctl fail (a driver without it); =polarity keeps
  * the RS-485 mode but drops the RTS polarity flags (a driver that clamps what it cannot do).
  */
@@ -42,6 +44,13 @@
 #include <termios.h>
 #include <time.h>
 #include <unistd.h>
+
+#include "linedouble.h"
+
+#ifndef LINEDOUBLE_GPIOD
+#define LINEDOUBLE_GPIOD 1 /* which libgpiod API this build stands in for; 0: none */
+#endif
+#define DOUBLE_LINES 32
 
 static pthread_mutex_t lock = PTHREAD_MUTEX_INITIALIZER;
 static char port_real[PATH_MAX];
@@ -103,6 +112,19 @@ static void record(long long t, const char *fmt, ...)
     line[n++] = '\n';
     if (log_fd >= 0)
         real_write(log_fd, line, (size_t)n);
+}
+
+void ld_record(const char *fmt, ...)
+{
+    char text[128];
+    va_list ap;
+    pthread_mutex_lock(&lock);
+    init();
+    pthread_mutex_unlock(&lock);
+    va_start(ap, fmt);
+    vsnprintf(text, sizeof text, fmt, ap);
+    va_end(ap);
+    record(now_us(), "%s", text);
 }
 
 static int refused(const char *what)
@@ -195,14 +217,20 @@ int ioctl(int fd, unsigned long req, ...)
             break;
         }
     }
+#if LINEDOUBLE_GPIOD == 0
+    {
+        int rc;
+        if (gpiocdev_ioctl(fd, req, arg, &rc))
+            return rc;
+    }
+#endif
     return real_ioctl(fd, req, arg);
 }
 
-#ifndef LINEDOUBLE_GPIOD
-#define LINEDOUBLE_GPIOD 1
-#endif
-#define DOUBLE_LINES 32
 
+#if LINEDOUBLE_GPIOD == 0
+/* no libgpiod here: gpiocdev_double.c is the kernel under the real one */
+#else
 static int misuse(const char *what, int err)
 {
     pthread_mutex_lock(&lock);
@@ -212,6 +240,8 @@ static int misuse(const char *what, int err)
     errno = err;
     return -1;
 }
+
+#endif
 
 #if LINEDOUBLE_GPIOD == 1
 /* ---- libgpiod 1, the functions the shims use --------------------------------- */
@@ -278,7 +308,7 @@ void gpiod_line_release(struct gpiod_line *line)
 {
     line->requested = 0;
 }
-#else
+#elif LINEDOUBLE_GPIOD == 2
 /* ---- libgpiod 2, the functions the shims use --------------------------------- */
 #include <stdbool.h>
 #define DIRECTION_OUTPUT 3 /* enum gpiod_line_direction */

@@ -60,14 +60,15 @@ pytestmark = pytest.mark.skipif(not (os.path.isfile(DOUBLE) and os.path.isfile(D
 
 
 def run_master(tmp_path, port, framing, mode, chip=CHIP, refuse=None, active_low=False,
-               before=0, after=0, n=4, double=True, api=1, offset=17, double_chip=CHIP):
-    """The master in a child process (under the test double for libgpiod `api` unless
-    double=False): its results and the double's log."""
+               before=0, after=0, n=4, double=True, api=1, offset=17, double_chip=CHIP,
+               preload=None):
+    """The master in a child process (under the test double for libgpiod `api`, or what
+    `preload` names, unless double=False): its results and the double's log."""
     line = LINES[framing]
     log = tmp_path / f"{framing}-{mode}-v{api}.log"
     env = dict(os.environ)
     if double:
-        env.update(LD_PRELOAD=DOUBLES[api], LINEDOUBLE_PORT=port, LINEDOUBLE_LOG=str(log),
+        env.update(LD_PRELOAD=preload or DOUBLES[api], LINEDOUBLE_PORT=port, LINEDOUBLE_LOG=str(log),
                    LINEDOUBLE_GPIOCHIP=double_chip)
     if refuse:
         env["LINEDOUBLE_REFUSE"] = refuse
@@ -147,6 +148,69 @@ def test_refused_mode_sends_nothing(tmp_path, framing, mode, chip, refuse, api):
     assert [rc for rc, _ in out["reads"]] == [E_DIRECTION] * 2
     assert "write" not in log.split()                          # no byte on the wire
     assert frames == []                                        # and the device heard nothing
+
+
+REAL_LIBGPIOD = {1: os.environ.get("MBFB_LIBGPIOD1", ""), 2: os.environ.get("MBFB_LIBGPIOD2", "")}
+CDEV_DOUBLE = os.environ.get("MBFB_GPIOCDEV_DOUBLE", "")
+CDEV_CHIP = "gpiochip5"
+
+
+def real_libgpiod(api):
+    """LD_PRELOAD for the real libgpiod `api` over the kernel's GPIO device double
+    (gpiocdev_double.c); skips (fails under MBFB_REQUIRE_TOOLCHAIN=1) without them."""
+    why = None
+    if not os.path.isfile(CDEV_DOUBLE):
+        why = "the GPIO character-device double (MBFB_GPIOCDEV_DOUBLE) is not built"
+    elif not os.path.isfile(REAL_LIBGPIOD[api]):
+        why = {1: "Debian's libgpiod 1 (libgpiod.so.2, package libgpiod2) is not installed",
+               2: "libgpiod 2 was not built: " + os.environ.get("MBFB_LIBGPIOD2_REASON", "?")}[api]
+    if why:
+        if os.environ.get("MBFB_REQUIRE_TOOLCHAIN") == "1":
+            pytest.fail(why + " (MBFB_REQUIRE_TOOLCHAIN=1)")
+        pytest.skip(why)
+    return f"{CDEV_DOUBLE}:{REAL_LIBGPIOD[api]}"
+
+
+@pytest.mark.parametrize("api", [1, 2])
+@pytest.mark.parametrize("active_low,before", [(False, 300), (True, 0)])
+def test_real_libgpiod_edges(tmp_path, api, active_low, before):
+    """The real libgpiod 1 (Debian 12's) and 2 (2.2.1, built from source) between the shims
+    and the kernel's uAPI (v1 and v2, as each speaks it), through the double of the GPIO
+    character device: the line requested once as an output at idle by "mbfb", then up and
+    down around every request as with the library doubles."""
+    preload = real_libgpiod(api)
+    line = LINES["rtu"]
+    with Simulator([line["device"]], fmt=line["fmt"], baud=BAUD, pace=True) as sim:
+        out, log = run_master(tmp_path, sim.port, "rtu", "gpio", chip=CDEV_CHIP, api=api,
+                              active_low=active_low, before=before, double_chip=CDEV_CHIP,
+                              preload=preload)
+    assert [rc for rc, _ in out["reads"]] == [0] * 4, (out, log)
+    assert out["write"] == 0
+    got = line_edges.check(log, "gpio", 1e6 * 11 / BAUD, before, 0, active_low)
+    assert got["requests"] >= 4 and "misuse" not in log, log
+    reqs = [ln.split()[2:] for ln in log.splitlines() if ln.split()[1] == "gpioreq"]
+    assert reqs == [["mbfb", "17", str(int(active_low)), f"uapi-v{api}"]], log
+
+
+@pytest.mark.parametrize("api", [1, 2])
+@pytest.mark.parametrize("chip,answers", [
+    ("gpiochip5", True), ("/dev/gpiochip5", True), ("5", True),
+    ("gpiochip6", False), ("6", False)])
+def test_real_libgpiod_finds_the_chip(tmp_path, api, chip, answers):
+    """A chip named by name, path or number through the real libraries; another chip is
+    refused (15) with nothing sent."""
+    preload = real_libgpiod(api)
+    with Simulator([LINES["rtu"]["device"]], fmt="8N2", baud=BAUD) as sim:
+        out, log = run_master(tmp_path, sim.port, "rtu", "gpio", chip=chip, api=api, n=1,
+                              double_chip=CDEV_CHIP, preload=preload)
+        frames = sim.log()
+    if answers:
+        assert [rc for rc, _ in out["reads"]] == [0], (out, log)
+        assert f"gpioreq mbfb 17 0 uapi-v{api}" in log
+    else:
+        assert [rc for rc, _ in out["reads"]] == [E_DIRECTION], (out, log)
+        assert "write" not in log.split() and "gpioreq" not in log and frames == []
+    assert "misuse" not in log, log
 
 
 def test_real_pty_refuses_rts_and_kernel_mode(tmp_path):
