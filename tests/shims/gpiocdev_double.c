@@ -10,6 +10,8 @@
  *   lstat / stat of the path: a character device (major GPIOCDEV_MAJOR, minor N);
  *   realpath of /sys/dev/char/MAJ:N/subsystem: /sys/bus/gpio (libgpiod 2's check);
  *   access / open of /sys/bus/gpio/devices/gpiochipN/dev: "MAJ:N\n" (libgpiod 1's check);
+ *   the listing of /dev (opendir/readdir, scandir): the chip's name among the entries, for a
+ *   lookup by label;
  *   open of the path: a chip descriptor; its ioctls GPIO_GET_CHIPINFO, GPIO_GET_LINEINFO
  *   (uAPI v1), GPIO_GET_LINEHANDLE (v1 request), GPIO_V2_GET_LINE (v2 request), each
  *   request a descriptor of its own taking GPIOHANDLE_SET_LINE_VALUES (v1) or
@@ -23,6 +25,7 @@
  *                      fails as the kernel's would (EINVAL / EBUSY).
  */
 #define _GNU_SOURCE
+#include <dirent.h>
 #include <dlfcn.h>
 #include <errno.h>
 #include <fcntl.h>
@@ -60,6 +63,11 @@ static char *(*real_realpath)(const char *, char *);
 static int (*real_access)(const char *, int);
 static int (*real_open)(const char *, int, ...);
 static int (*real_close)(int);
+static DIR *(*real_opendir)(const char *);
+static struct dirent *(*real_readdir)(DIR *);
+static int (*real_closedir)(DIR *);
+static int (*real_scandir)(const char *, struct dirent ***, int (*)(const struct dirent *),
+                           int (*)(const struct dirent **, const struct dirent **));
 
 static void cdev_init(void)
 {
@@ -73,6 +81,12 @@ static void cdev_init(void)
     real_access = (int (*)(const char *, int))dlsym(RTLD_NEXT, "access");
     real_open = (int (*)(const char *, int, ...))dlsym(RTLD_NEXT, "open");
     real_close = (int (*)(int))dlsym(RTLD_NEXT, "close");
+    real_opendir = (DIR * (*)(const char *)) dlsym(RTLD_NEXT, "opendir");
+    real_readdir = (struct dirent * (*)(DIR *)) dlsym(RTLD_NEXT, "readdir");
+    real_closedir = (int (*)(DIR *))dlsym(RTLD_NEXT, "closedir");
+    real_scandir = (int (*)(const char *, struct dirent ***, int (*)(const struct dirent *),
+                            int (*)(const struct dirent **, const struct dirent **)))
+        dlsym(RTLD_NEXT, "scandir");
     c = getenv("LINEDOUBLE_GPIOCHIP");
     if (c != NULL && sscanf(c, "gpiochip%u", &chip_minor) == 1 && strlen(c) < sizeof chip_name) {
         snprintf(chip_name, sizeof chip_name, "%s", c);
@@ -135,6 +149,81 @@ int access(const char *path, int mode)
     if (is(path, sysfs_dev))
         return 0;
     return real_access(path, mode);
+}
+
+/* ---- /dev's listing, with the chip in it ---- */
+static DIR *dev_dir;       /* the one open listing of /dev that gets the chip */
+static int dev_dir_listed; /* the chip's entry given */
+
+static int is_dev(const char *path)
+{
+    cdev_init();
+    return chip_name[0] != 0 && path != NULL &&
+           (strcmp(path, "/dev") == 0 || strcmp(path, "/dev/") == 0);
+}
+
+static void chip_entry(struct dirent *e)
+{
+    memset(e, 0, sizeof *e);
+    e->d_type = DT_CHR;
+    e->d_reclen = sizeof *e;
+    snprintf(e->d_name, sizeof e->d_name, "%s", chip_name);
+}
+
+DIR *opendir(const char *path)
+{
+    DIR *d;
+    cdev_init();
+    d = real_opendir(path);
+    if (d != NULL && is_dev(path)) {
+        dev_dir = d;
+        dev_dir_listed = 0;
+    }
+    return d;
+}
+
+struct dirent *readdir(DIR *d)
+{
+    static struct dirent chip;
+    struct dirent *e;
+    cdev_init();
+    e = real_readdir(d);
+    if (e == NULL && d == dev_dir && !dev_dir_listed) {
+        dev_dir_listed = 1;
+        chip_entry(&chip);
+        return &chip;
+    }
+    return e;
+}
+
+int closedir(DIR *d)
+{
+    cdev_init();
+    if (d == dev_dir)
+        dev_dir = NULL;
+    return real_closedir(d);
+}
+
+int scandir(const char *path, struct dirent ***list, int (*filter)(const struct dirent *),
+            int (*cmp)(const struct dirent **, const struct dirent **))
+{
+    int n;
+    struct dirent *e, **more;
+    cdev_init();
+    n = real_scandir(path, list, filter, cmp);
+    if (n < 0 || !is_dev(path) || (e = (struct dirent *)malloc(sizeof *e)) == NULL)
+        return n;
+    chip_entry(e);
+    if ((filter != NULL && !filter(e)) ||
+        (more = (struct dirent **)realloc(*list, (size_t)(n + 1) * sizeof *more)) == NULL) {
+        free(e);
+        return n;
+    }
+    more[n++] = e;
+    *list = more;
+    if (cmp != NULL)
+        qsort(more, (size_t)n, sizeof *more, (int (*)(const void *, const void *))cmp);
+    return n;
 }
 
 /* a descriptor of kind k (a real one, on /dev/null, so that the number is ours) */

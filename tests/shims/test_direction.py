@@ -194,11 +194,11 @@ def test_real_libgpiod_edges(tmp_path, api, active_low, before):
 
 @pytest.mark.parametrize("api", [1, 2])
 @pytest.mark.parametrize("chip,answers", [
-    ("gpiochip5", True), ("/dev/gpiochip5", True), ("5", True),
-    ("gpiochip6", False), ("6", False)])
+    ("gpiochip5", True), ("/dev/gpiochip5", True), ("5", True), ("linedouble", True),
+    ("gpiochip6", False), ("6", False), ("pinctrl-none", False)])
 def test_real_libgpiod_finds_the_chip(tmp_path, api, chip, answers):
-    """A chip named by name, path or number through the real libraries; another chip is
-    refused (15) with nothing sent."""
+    """A chip named by name, path, number or label (the double's chip is labelled
+    "linedouble") through the real libraries; another chip is refused (15), nothing sent."""
     preload = real_libgpiod(api)
     with Simulator([LINES["rtu"]["device"]], fmt="8N2", baud=BAUD) as sim:
         out, log = run_master(tmp_path, sim.port, "rtu", "gpio", chip=chip, api=api, n=1,
