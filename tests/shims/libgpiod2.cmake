@@ -1,7 +1,8 @@
 # tests/shims/libgpiod2.cmake - the real libgpiod 2 (soname libgpiod.so.3) for the GPIO tests,
 # built into this build tree: Debian 12 packages only libgpiod 1 (libgpiod2, libgpiod.so.2),
 # and Debian 13's libgpiod3 is built against a newer glibc. Test-only: the shims never link it.
-# Sets MBFB_LIBGPIOD2 (the library's path, empty when there is none) and MBFB_LIBGPIOD2_REASON.
+# Sets MBFB_LIBGPIOD2 (the library's path, empty when there is none; cached, for tests/kernel too)
+# and MBFB_LIBGPIOD2_REASON.
 #
 # Its source, the first that applies:
 #   1. LIBGPIOD2_SOURCE_DIR: a libgpiod 2 source tree (a release, a clone, or an unpacked
@@ -67,7 +68,9 @@ if(MBFB_LIBGPIOD2_REASON STREQUAL "")
   set_target_properties(mbfb_libgpiod2 PROPERTIES OUTPUT_NAME gpiod VERSION 3 SOVERSION 3
                         LIBRARY_OUTPUT_DIRECTORY "${CMAKE_CURRENT_BINARY_DIR}/libgpiod2")
   set(MBFB_LIBGPIOD2 "${CMAKE_CURRENT_BINARY_DIR}/libgpiod2/libgpiod.so.3")
+  set(MBFB_LIBGPIOD2 "${MBFB_LIBGPIOD2}" CACHE INTERNAL "libgpiod 2 built for the tests")
   message(STATUS "libgpiod2: libgpiod ${_version} from ${_from} (target mbfb_libgpiod2)")
 else()
+  set(MBFB_LIBGPIOD2 "" CACHE INTERNAL "libgpiod 2 built for the tests")
   message(STATUS "libgpiod2: none: ${MBFB_LIBGPIOD2_REASON}")
 endif()
