@@ -72,8 +72,8 @@ extern "C" {
                                    the port opens), or above 4000000 (mbfb_bus_open)    */
 #define MBFB_E_DIRECTION    15  /* RS-485 direction control refused when the port opens: the
                                    driver has no kernel RS-485 mode, RTS cannot be set, the
-                                   GPIO chip or line is missing or busy, or libgpiod (v1,
-                                   libgpiod.so.2) is not installed; nothing was sent   */
+                                   GPIO chip or line is missing or busy, or no libgpiod
+                                   (2 or 1) is installed; nothing was sent             */
 #define MBFB_E_STOPPED      16  /* not done because the PLC stopped scanning the block: no
                                    snapshot taken for 10 periods (the plan's or the task's, at
                                    least 2 s), its plan stopped polling (one failed snapshot,
@@ -116,7 +116,7 @@ extern "C" {
 #define MBFB_DIR_RTS    2 /* the worker asserts RTS before each request and releases it
                              once the last bit has left (tcdrain + one character)        */
 #define MBFB_DIR_GPIO   3 /* the same with a GPIO line (Linux GPIO character device, through
-                             libgpiod v1 loaded at run time)                              */
+                             libgpiod 2 or 1, loaded at run time)                         */
 #define MBFB_DIR_MAX_DELAY_US 100000 /* dir_before_us / dir_after_us at most 100 ms        */
 #define MBFB_GPIO_CHIP_MAX 32        /* gpio_chip[] size, with its NUL                     */
 
@@ -138,7 +138,7 @@ typedef struct mbfb_bus_config {
     int dir_before_us;        /* line switched this long before the first bit           */
     int dir_after_us;         /* and held this long after the last bit has left         */
     char gpio_chip[MBFB_GPIO_CHIP_MAX]; /* MBFB_DIR_GPIO: "gpiochip0", "/dev/gpiochip0",
-                                 a chip number or label (gpiod_chip_open_lookup)          */
+                                 a chip number or label (as libgpiod 1's lookup)          */
     int gpio_line;            /* MBFB_DIR_GPIO: the line's offset on that chip          */
 } mbfb_bus_config_t;
 

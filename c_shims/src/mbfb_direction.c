@@ -9,11 +9,8 @@
  * - MBFB_DIR_KERNEL: the UART driver's RS-485 mode (TIOCSRS485, read back with
  *   TIOCGRS485); the kernel switches RTS around every frame, so drive is NULL.
  * - MBFB_DIR_RTS: TIOCMBIS / TIOCMBIC of TIOCM_RTS by the worker.
- * - MBFB_DIR_GPIO: a line of a GPIO chip through libgpiod (v1 API, libgpiod.so.2), loaded
- *   with dlopen when a bus first asks for it, so a program without GPIO needs no libgpiod
- *   and OpenPLC's build needs no extra library. libgpiod and not the raw GPIO ioctls: it is
- *   the maintained interface to the GPIO character device (chip lookup by name, number,
- *   path or label; line requests with a consumer name), packaged by every distribution.
+ * - MBFB_DIR_GPIO: a line of a GPIO chip through libgpiod 2 or 1, loaded at run time
+ *   (mbfb_gpio.c).
  * For RTS and GPIO the worker switches the line on, waits dir_before_us, sends, waits until
  * the frame has left the UART, waits dir_after_us and switches it off. "Has left" is the
  * later of tcdrain() plus one character (the shift register: many drivers report the FIFO
@@ -25,60 +22,21 @@
 #ifndef _GNU_SOURCE
 #define _GNU_SOURCE
 #endif
-#include <dlfcn.h>
 #include <errno.h>
 #include <linux/serial.h> /* struct serial_rs485 */
-#include <pthread.h>
 #include <stdlib.h>
 #include <string.h>
 #include <sys/ioctl.h>
 #include <termios.h>
 #include <time.h>
 
+#include "mbfb_gpio.h"
 #include "mbfb_internal.h"
-
-/* ---- libgpiod v1, loaded at run time ------------------------------------- */
-struct gpiod_chip;
-struct gpiod_line;
-static struct {
-    struct gpiod_chip *(*chip_open_lookup)(const char *);
-    void (*chip_close)(struct gpiod_chip *);
-    struct gpiod_line *(*chip_get_line)(struct gpiod_chip *, unsigned int);
-    int (*line_request_output)(struct gpiod_line *, const char *, int);
-    int (*line_set_value)(struct gpiod_line *, int);
-    void (*line_release)(struct gpiod_line *);
-    int loaded; /* 1: every function found */
-} gpiod;
-static pthread_once_t gpiod_once = PTHREAD_ONCE_INIT;
-
-/* Load libgpiod.so.2 (libgpiod 1.x: Debian 12, Ubuntu 22.04, Raspberry Pi OS bookworm). */
-static void gpiod_load(void)
-{
-    void *h = dlopen("libgpiod.so.2", RTLD_NOW | RTLD_LOCAL);
-    if (h == NULL)
-        return;
-    /* POSIX: a dlsym result converts to a function pointer through memcpy */
-    void *f[6];
-    static const char *const names[6] = {
-        "gpiod_chip_open_lookup",    "gpiod_chip_close",       "gpiod_chip_get_line",
-        "gpiod_line_request_output", "gpiod_line_set_value",   "gpiod_line_release"};
-    for (int i = 0; i < 6; i++)
-        if ((f[i] = dlsym(h, names[i])) == NULL)
-            return; /* not the v1 API */
-    memcpy(&gpiod.chip_open_lookup, &f[0], sizeof f[0]);
-    memcpy(&gpiod.chip_close, &f[1], sizeof f[1]);
-    memcpy(&gpiod.chip_get_line, &f[2], sizeof f[2]);
-    memcpy(&gpiod.line_request_output, &f[3], sizeof f[3]);
-    memcpy(&gpiod.line_set_value, &f[4], sizeof f[4]);
-    memcpy(&gpiod.line_release, &f[5], sizeof f[5]);
-    gpiod.loaded = 1;
-}
 
 /* ---- the modes -------------------------------------------------------------- */
 typedef struct dir_state {
     struct serial_rs485 saved;  /* KERNEL: the driver's RS-485 settings before ours   */
-    struct gpiod_chip *chip;    /* GPIO */
-    struct gpiod_line *line;
+    mbfb_gpio_t *gpio;          /* GPIO: the requested line                         */
 } dir_state_t;
 
 typedef struct dir_mode {
@@ -137,33 +95,22 @@ static int rts_open(mbfb_bus_t *bus, dir_state_t *st)
 static int gpio_drive(mbfb_bus_t *bus, dir_state_t *st, int sending)
 {
     int on = sending != bus->cfg.dir_active_low;
-    return gpiod.line_set_value(st->line, on) == 0 ? 0 : -MBFB_E_PORTLOST;
+    return mbfb_gpio_set(st->gpio, on) == 0 ? 0 : -MBFB_E_PORTLOST;
 }
 
 static void gpio_close(mbfb_bus_t *bus, dir_state_t *st)
 {
     (void)bus;
-    if (st->line != NULL)
-        gpiod.line_release(st->line);
-    if (st->chip != NULL)
-        gpiod.chip_close(st->chip);
-    st->line = NULL;
-    st->chip = NULL;
+    mbfb_gpio_close(st->gpio);
+    st->gpio = NULL;
 }
 
 static int gpio_open(mbfb_bus_t *bus, dir_state_t *st)
 {
     const mbfb_bus_config_t *c = &bus->cfg;
 
-    pthread_once(&gpiod_once, gpiod_load);
-    if (!gpiod.loaded || (st->chip = gpiod.chip_open_lookup(c->gpio_chip)) == NULL ||
-        (st->line = gpiod.chip_get_line(st->chip, (unsigned)c->gpio_line)) == NULL ||
-        gpiod.line_request_output(st->line, "mbfb", c->dir_active_low) != 0) {
-        st->line = NULL; /* not requested: nothing to release */
-        gpio_close(bus, st);
-        return -MBFB_E_DIRECTION;
-    }
-    return 0;
+    st->gpio = mbfb_gpio_open(c->gpio_chip, (unsigned)c->gpio_line, c->dir_active_low);
+    return st->gpio != NULL ? 0 : -MBFB_E_DIRECTION;
 }
 
 /* indexed by MBFB_DIR_* */

@@ -14,11 +14,18 @@
  *   T rs485 F B A   TIOCSRS485 with flags F (hex), delay before B and after A (ms); the
  *                   kernel's RS-485 mode, which a pty lacks, is kept here and read back
  *                   by TIOCGRS485
- *   T gpio V        the GPIO line set to V (gpiod_line_set_value)
- *   T gpioreq U L V a GPIO line requested as output by consumer U: offset L, initial V
- * It also stands in for libgpiod v1 (its soname is libgpiod.so.2, so the shims' dlopen of
- * libgpiod.so.2 finds this already-loaded library): chip $LINEDOUBLE_GPIOCHIP exists and
- * has lines 0..31; any other chip does not.
+ *   T gpio V        the GPIO line set to V (gpiod_line_set_value, gpiod_line_request_set_value)
+ *   T gpioreq U L V A  a GPIO line requested as output by consumer U: offset L, initial V,
+ *                   through libgpiod's API A (v1 or v2)
+ * It also stands in for libgpiod, built twice: with LINEDOUBLE_GPIOD=1 for libgpiod 1's API
+ * (soname libgpiod.so.2), with LINEDOUBLE_GPIOD=2 for libgpiod 2's (soname libgpiod.so.3), so
+ * the shims' dlopen of that soname finds this already-loaded library. Chip
+ * $LINEDOUBLE_GPIOCHIP exists (v1: by that name; v2: at /dev/$LINEDOUBLE_GPIOCHIP, which is all
+ * libgpiod 2 opens, with label $LINEDOUBLE_GPIOLABEL) and has lines 0..31; any other does not.
+ * Calls that break the API's rules (a line set that was not requested, a request that is not
+ * one output line) fail and are logged as "misuse WHAT".
+ * With LINEDOUBLE_GPIOD=0 it has no libgpiod functions; gpiocdev_double.c, linked with it,
+ * stands in for the kernel's GPIO character device under the real libgpiod instead.
  * $LINEDOUBLE_REFUSE=rts|rs485 makes that ioctl fail (a driver without it); =polarity keeps
  * the RS-485 mode but drops the RTS polarity flags (a driver that clamps what it cannot do).
  */
@@ -37,6 +44,13 @@
 #include <termios.h>
 #include <time.h>
 #include <unistd.h>
+
+#include "linedouble.h"
+
+#ifndef LINEDOUBLE_GPIOD
+#define LINEDOUBLE_GPIOD 1 /* which libgpiod API this build stands in for; 0: none */
+#endif
+#define DOUBLE_LINES 32
 
 static pthread_mutex_t lock = PTHREAD_MUTEX_INITIALIZER;
 static char port_real[PATH_MAX];
@@ -98,6 +112,19 @@ static void record(long long t, const char *fmt, ...)
     line[n++] = '\n';
     if (log_fd >= 0)
         real_write(log_fd, line, (size_t)n);
+}
+
+void ld_record(const char *fmt, ...)
+{
+    char text[128];
+    va_list ap;
+    pthread_mutex_lock(&lock);
+    init();
+    pthread_mutex_unlock(&lock);
+    va_start(ap, fmt);
+    vsnprintf(text, sizeof text, fmt, ap);
+    va_end(ap);
+    record(now_us(), "%s", text);
 }
 
 static int refused(const char *what)
@@ -190,18 +217,43 @@ int ioctl(int fd, unsigned long req, ...)
             break;
         }
     }
+#if LINEDOUBLE_GPIOD == 0
+    {
+        int rc;
+        if (gpiocdev_ioctl(fd, req, arg, &rc))
+            return rc;
+    }
+#endif
     return real_ioctl(fd, req, arg);
 }
 
-/* ---- libgpiod v1, the functions the shims use -------------------------------- */
+
+#if LINEDOUBLE_GPIOD == 0
+/* no libgpiod here: gpiocdev_double.c is the kernel under the real one */
+#else
+static int misuse(const char *what, int err)
+{
+    pthread_mutex_lock(&lock);
+    init();
+    pthread_mutex_unlock(&lock);
+    record(now_us(), "misuse %s", what);
+    errno = err;
+    return -1;
+}
+
+#endif
+
+#if LINEDOUBLE_GPIOD == 1
+/* ---- libgpiod 1, the functions the shims use --------------------------------- */
 struct gpiod_chip {
     int unused;
 };
 struct gpiod_line {
     unsigned offset;
+    int requested;
 };
 static struct gpiod_chip the_chip;
-static struct gpiod_line lines[32];
+static struct gpiod_line lines[DOUBLE_LINES];
 
 struct gpiod_chip *gpiod_chip_open_lookup(const char *name)
 {
@@ -220,8 +272,11 @@ void gpiod_chip_close(struct gpiod_chip *chip)
 
 struct gpiod_line *gpiod_chip_get_line(struct gpiod_chip *chip, unsigned int offset)
 {
-    (void)chip;
-    if (offset >= 32) {
+    if (chip != &the_chip) {
+        misuse("chip", EINVAL);
+        return NULL;
+    }
+    if (offset >= DOUBLE_LINES) {
         errno = EINVAL;
         return NULL;
     }
@@ -234,18 +289,189 @@ int gpiod_line_request_output(struct gpiod_line *line, const char *consumer, int
     pthread_mutex_lock(&lock);
     init();
     pthread_mutex_unlock(&lock);
-    record(now_us(), "gpioreq %s %u %d", consumer, line->offset, value);
+    if (line->requested)
+        return misuse("request-twice", EBUSY);
+    line->requested = 1;
+    record(now_us(), "gpioreq %s %u %d v1", consumer, line->offset, value);
     return 0;
 }
 
 int gpiod_line_set_value(struct gpiod_line *line, int value)
 {
-    (void)line;
+    if (!line->requested)
+        return misuse("set-unrequested", EPERM);
     record(now_us(), "gpio %d", value);
     return 0;
 }
 
 void gpiod_line_release(struct gpiod_line *line)
 {
-    (void)line;
+    line->requested = 0;
 }
+#elif LINEDOUBLE_GPIOD == 2
+/* ---- libgpiod 2, the functions the shims use --------------------------------- */
+#include <stdbool.h>
+#define DIRECTION_OUTPUT 3 /* enum gpiod_line_direction */
+struct gpiod_chip {
+    int unused;
+};
+struct gpiod_chip_info {
+    int unused;
+};
+struct gpiod_line_settings {
+    int direction, value;
+};
+struct gpiod_line_config {
+    unsigned offset;
+    int n, direction, value;
+};
+struct gpiod_request_config {
+    char consumer[32];
+};
+struct gpiod_line_request {
+    unsigned offset;
+};
+static struct gpiod_chip the_chip;
+static struct gpiod_chip_info the_info;
+
+bool gpiod_is_gpiochip_device(const char *path)
+{
+    const char *ours = getenv("LINEDOUBLE_GPIOCHIP");
+    return ours != NULL && path != NULL && strncmp(path, "/dev/", 5) == 0 &&
+           strcmp(path + 5, ours) == 0;
+}
+
+struct gpiod_chip *gpiod_chip_open(const char *path)
+{
+    if (!gpiod_is_gpiochip_device(path)) {
+        errno = ENOENT;
+        return NULL;
+    }
+    return &the_chip;
+}
+
+void gpiod_chip_close(struct gpiod_chip *chip)
+{
+    if (chip != &the_chip)
+        misuse("chip", EINVAL);
+}
+
+struct gpiod_chip_info *gpiod_chip_get_info(struct gpiod_chip *chip)
+{
+    return chip == &the_chip ? &the_info : NULL;
+}
+
+const char *gpiod_chip_info_get_label(struct gpiod_chip_info *info)
+{
+    const char *l = getenv("LINEDOUBLE_GPIOLABEL");
+    (void)info;
+    return l != NULL ? l : "linedouble";
+}
+
+void gpiod_chip_info_free(struct gpiod_chip_info *info)
+{
+    (void)info;
+}
+
+struct gpiod_line_settings *gpiod_line_settings_new(void)
+{
+    return (struct gpiod_line_settings *)calloc(1, sizeof(struct gpiod_line_settings));
+}
+
+void gpiod_line_settings_free(struct gpiod_line_settings *s)
+{
+    free(s);
+}
+
+int gpiod_line_settings_set_direction(struct gpiod_line_settings *s, int direction)
+{
+    if (direction < 1 || direction > 3)
+        return misuse("direction", EINVAL);
+    s->direction = direction;
+    return 0;
+}
+
+int gpiod_line_settings_set_output_value(struct gpiod_line_settings *s, int value)
+{
+    if (value != 0 && value != 1)
+        return misuse("value", EINVAL);
+    s->value = value;
+    return 0;
+}
+
+struct gpiod_line_config *gpiod_line_config_new(void)
+{
+    return (struct gpiod_line_config *)calloc(1, sizeof(struct gpiod_line_config));
+}
+
+void gpiod_line_config_free(struct gpiod_line_config *c)
+{
+    free(c);
+}
+
+int gpiod_line_config_add_line_settings(struct gpiod_line_config *c, const unsigned int *offsets,
+                                        size_t n, struct gpiod_line_settings *s)
+{
+    if (n != 1 || c->n != 0)
+        return misuse("lines", EINVAL);
+    c->offset = offsets[0];
+    c->direction = s->direction;
+    c->value = s->value;
+    c->n = 1;
+    return 0;
+}
+
+struct gpiod_request_config *gpiod_request_config_new(void)
+{
+    return (struct gpiod_request_config *)calloc(1, sizeof(struct gpiod_request_config));
+}
+
+void gpiod_request_config_free(struct gpiod_request_config *r)
+{
+    free(r);
+}
+
+void gpiod_request_config_set_consumer(struct gpiod_request_config *r, const char *consumer)
+{
+    snprintf(r->consumer, sizeof r->consumer, "%s", consumer);
+}
+
+struct gpiod_line_request *gpiod_chip_request_lines(struct gpiod_chip *chip,
+                                                    struct gpiod_request_config *r,
+                                                    struct gpiod_line_config *c)
+{
+    struct gpiod_line_request *req;
+    pthread_mutex_lock(&lock);
+    init();
+    pthread_mutex_unlock(&lock);
+    if (chip != &the_chip || c->n != 1 || c->direction != DIRECTION_OUTPUT) {
+        misuse("request", EINVAL);
+        return NULL;
+    }
+    if (c->offset >= DOUBLE_LINES) {
+        errno = EINVAL;
+        return NULL;
+    }
+    if ((req = (struct gpiod_line_request *)calloc(1, sizeof *req)) == NULL)
+        return NULL;
+    req->offset = c->offset;
+    record(now_us(), "gpioreq %s %u %d v2", r->consumer[0] ? r->consumer : "?", c->offset,
+           c->value);
+    return req;
+}
+
+int gpiod_line_request_set_value(struct gpiod_line_request *req, unsigned int offset, int value)
+{
+    if (offset != req->offset)
+        return misuse("set-offset", EINVAL);
+    if (value != 0 && value != 1)
+        return misuse("value", EINVAL);
+    record(now_us(), "gpio %d", value);
+    return 0;
+}
+
+void gpiod_line_request_release(struct gpiod_line_request *req)
+{
+    free(req);
+}
+#endif

@@ -3,12 +3,12 @@ for RTU, ASCII and RTU without CRC, against the paced simulator, the shims switc
 GPIO line around every request (up before its first byte by the set delay, down after its last
 byte has left and before the device's reply starts), or put the port into the kernel's RS-485
 mode once; a port or library that refuses the mode gives MBFB_E_DIRECTION (15) and no byte.
+GPIO through each libgpiod API: the double is built for libgpiod 1 (soname libgpiod.so.2) and
+for libgpiod 2 (libgpiod.so.3), and the log names the API the shims used.
 
 The master runs in a child process under the double, through the shims' shared library
 (tools/commission/shims.py); the double records with the shims' clock (CLOCK_MONOTONIC)."""
-import json
 import os
-import subprocess
 import sys
 
 import pytest
@@ -17,74 +17,27 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(os.path.dirname(HERE))
 sys.path[:0] = [HERE, os.path.join(ROOT, "tools", "commission"), os.path.join(ROOT, "tools", "sim")]
 import line_edges  # noqa: E402
+from direction_master import (BAUD, CHIP, CDEV_CHIP, LINES, doubles_built,  # noqa: E402
+                              real_libgpiod, run_master)
 from shims import E_DIRECTION, E_INVAL  # noqa: E402
 from simctl import Simulator  # noqa: E402
 
-DOUBLE = os.environ.get("MBFB_LINEDOUBLE", "")
-CHIP = "gpiochip-double"
-BAUD = 9600
-
-# one device per framing, with a register to read and one to write (value, read back)
-LINES = {
-    "rtu": dict(device="mvd94:1:SV=100.0,DP=1", fmt="8N2", stop=2, read=(4, 4096, 1), write=(0, 1234)),
-    "ascii": dict(device="mts9:1:framing=ascii", fmt="8N1", stop=1, read=(3, 7, 1), write=None),
-    "nocrc": dict(device="mts9:1:framing=nocrc", fmt="8N1", stop=1, read=(3, 7, 1), write=None),
-}
-
-MASTER = r"""
-import json, sys
-sys.path.insert(0, sys.argv[1])
-from shims import Shims
-a = json.loads(sys.argv[2])
-with Shims.load() as lib:
-    bus = lib.open_bus(a["port"], a["baud"], "N", 8, a["stop"], a["framing"],
-                       direction=a["mode"], active_low=a["active_low"], before_us=a["before"],
-                       after_us=a["after"], gpio_chip=a["chip"], gpio_line=a["line"])
-    out = {"bus": bus, "reads": [], "write": None}
-    if bus >= 0:
-        dev = lib.open_device(bus, 1)
-        for _ in range(a["n"]):
-            out["reads"].append(lib.read(dev, *a["read"]))
-        if a["write"]:
-            out["write"] = lib.write(dev, *a["write"])
-    print(json.dumps(out))
-"""
-
-pytestmark = pytest.mark.skipif(not os.path.isfile(DOUBLE),
-                                reason="MBFB_LINEDOUBLE (the test double's library) not built")
-
-
-def run_master(tmp_path, port, framing, mode, chip=CHIP, refuse=None, active_low=False,
-               before=0, after=0, n=4, double=True):
-    """The master in a child process (under the test double unless double=False): its
-    results and the double's log."""
-    line = LINES[framing]
-    log = tmp_path / f"{framing}-{mode}.log"
-    env = dict(os.environ)
-    if double:
-        env.update(LD_PRELOAD=DOUBLE, LINEDOUBLE_PORT=port, LINEDOUBLE_LOG=str(log),
-                   LINEDOUBLE_GPIOCHIP=CHIP)
-    if refuse:
-        env["LINEDOUBLE_REFUSE"] = refuse
-    arg = dict(port=port, baud=BAUD, stop=line["stop"], framing=framing, mode=mode,
-               active_low=active_low, before=before, after=after, chip=chip, line=17,
-               read=line["read"], write=line["write"], n=n)
-    proc = subprocess.run([sys.executable, "-c", MASTER, os.path.join(ROOT, "tools", "commission"),
-                           json.dumps(arg)], env=env, capture_output=True, text=True, timeout=120)
-    assert proc.returncode == 0, proc.stderr
-    text = log.read_text() if log.exists() else ""
-    return json.loads(proc.stdout), text
+pytestmark = pytest.mark.skipif(not doubles_built(),
+                                reason="MBFB_LINEDOUBLE / MBFB_LINEDOUBLE2 (the test double's "
+                                       "libraries) not built")
 
 
 @pytest.mark.parametrize("framing", ["rtu", "ascii", "nocrc"])
-@pytest.mark.parametrize("mode,active_low,before,after", [
-    ("rts", False, 0, 0), ("rts", True, 500, 200), ("gpio", False, 300, 0), ("gpio", True, 0, 0),
-    ("kernel", False, 1500, 0)])
-def test_edges_frame_every_request(tmp_path, framing, mode, active_low, before, after):
+@pytest.mark.parametrize("mode,active_low,before,after,api", [
+    ("rts", False, 0, 0, 1), ("rts", True, 500, 200, 1),
+    ("gpio", False, 300, 0, 1), ("gpio", True, 0, 0, 1),
+    ("gpio", False, 300, 0, 2), ("gpio", True, 0, 0, 2),
+    ("kernel", False, 1500, 0, 1)])
+def test_edges_frame_every_request(tmp_path, framing, mode, active_low, before, after, api):
     line = LINES[framing]
     with Simulator([line["device"]], fmt=line["fmt"], baud=BAUD, pace=True) as sim:
         out, log = run_master(tmp_path, sim.port, framing, mode, active_low=active_low,
-                              before=before, after=after)
+                              before=before, after=after, api=api)
     assert out["bus"] >= 0
     assert [rc for rc, _ in out["reads"]] == [0] * 4, out     # every read answered
     if line["write"]:
@@ -92,23 +45,50 @@ def test_edges_frame_every_request(tmp_path, framing, mode, active_low, before, 
     char_us = 1e6 * (1 + 8 + line["stop"]) / BAUD
     got = line_edges.check(log, mode, char_us, before, after, active_low)
     assert got["requests"] >= 4
+    assert "misuse" not in log, log                            # the API used by its rules
+    if mode == "gpio":                                         # one request, through the API asked
+        reqs = [ln.split()[2:] for ln in log.splitlines() if ln.split()[1] == "gpioreq"]
+        assert reqs == [["mbfb", "17", str(int(active_low)), f"v{api}"]], reqs
 
 
 @pytest.mark.parametrize("framing", ["rtu", "ascii", "nocrc"])
-@pytest.mark.parametrize("mode,chip,refuse", [
-    ("rts", CHIP, "rts"),            # a port without modem lines
-    ("kernel", CHIP, "rs485"),       # a driver without RS-485 mode
-    ("kernel", CHIP, "polarity"),    # one that drops the polarity asked for
-    ("gpio", "gpiochip-none", None)])  # no such GPIO chip
-def test_refused_mode_sends_nothing(tmp_path, framing, mode, chip, refuse):
+@pytest.mark.parametrize("mode,chip,refuse,api", [
+    ("rts", CHIP, "rts", 1),            # a port without modem lines
+    ("kernel", CHIP, "rs485", 1),       # a driver without RS-485 mode
+    ("kernel", CHIP, "polarity", 1),    # one that drops the polarity asked for
+    ("gpio", "gpiochip-none", None, 1),  # no such GPIO chip
+    ("gpio", "gpiochip-none", None, 2)])
+def test_refused_mode_sends_nothing(tmp_path, framing, mode, chip, refuse, api):
     line = LINES[framing]
     with Simulator([line["device"]], fmt=line["fmt"], baud=BAUD) as sim:
-        out, log = run_master(tmp_path, sim.port, framing, mode, chip=chip, refuse=refuse, n=2)
+        out, log = run_master(tmp_path, sim.port, framing, mode, chip=chip, refuse=refuse, n=2,
+                              api=api)
         frames = sim.log()
     assert out["bus"] >= 0
     assert [rc for rc, _ in out["reads"]] == [E_DIRECTION] * 2
     assert "write" not in log.split()                          # no byte on the wire
     assert frames == []                                        # and the device heard nothing
+
+
+@pytest.mark.parametrize("api", [1, 2])
+@pytest.mark.parametrize("active_low,before", [(False, 300), (True, 0)])
+def test_real_libgpiod_edges(tmp_path, api, active_low, before):
+    """The real libgpiod 1 (Debian 12's) and 2 (2.2.1, built from source) between the shims
+    and the kernel's uAPI (v1 and v2, as each speaks it), through the double of the GPIO
+    character device: the line requested once as an output at idle by "mbfb", then up and
+    down around every request as with the library doubles."""
+    preload = real_libgpiod(api)
+    line = LINES["rtu"]
+    with Simulator([line["device"]], fmt=line["fmt"], baud=BAUD, pace=True) as sim:
+        out, log = run_master(tmp_path, sim.port, "rtu", "gpio", chip=CDEV_CHIP, api=api,
+                              active_low=active_low, before=before, double_chip=CDEV_CHIP,
+                              preload=preload)
+    assert [rc for rc, _ in out["reads"]] == [0] * 4, (out, log)
+    assert out["write"] == 0
+    got = line_edges.check(log, "gpio", 1e6 * 11 / BAUD, before, 0, active_low)
+    assert got["requests"] >= 4 and "misuse" not in log, log
+    reqs = [ln.split()[2:] for ln in log.splitlines() if ln.split()[1] == "gpioreq"]
+    assert reqs == [["mbfb", "17", str(int(active_low)), f"uapi-v{api}"]], log
 
 
 def test_real_pty_refuses_rts_and_kernel_mode(tmp_path):
