@@ -15,12 +15,15 @@
  *   the maintained interface to the GPIO character device (chip lookup by name, number,
  *   path or label; line requests with a consumer name), packaged by every distribution.
  * For RTS and GPIO the worker switches the line on, waits dir_before_us, sends, waits until
- * the frame has left the UART, waits dir_after_us and switches it off. "Has left" is the
- * later of tcdrain() plus one character (the shift register: many drivers report the FIFO
- * empty while the last character is still going out) and the frame's own time on the wire
- * from when the write returned (a driver whose tcdrain returns early cannot make the frame
- * shorter; the frame cannot have begun later than that, so the line is never dropped early
- * however long the thread waited between raising the line and the write).
+ * the frame has left the UART, waits dir_after_us and switches it off. "Has left": never
+ * before the frame's own time on the wire from when the write returned (it cannot have begun
+ * earlier than the write began); from then on the UART's transmitter-empty
+ * bit (TIOCSERGETLSR, every serial_core UART: FIFO and shift register both empty), polled
+ * every quarter character, so the line drops within a fraction of a character of the last
+ * stop bit. Where the driver has no such ioctl (USB adapters), tcdrain() and one character
+ * more (many drivers report the FIFO empty while the last character is still going out).
+ * tcdrain() alone is not used on a UART: the kernel's uart_wait_until_sent sleeps in whole
+ * jiffies (4 ms at HZ=250), longer than the t3.5 after which an instrument may answer.
  */
 #ifndef _GNU_SOURCE
 #define _GNU_SOURCE
@@ -239,24 +242,45 @@ int mbfb_dir_begin(mbfb_bus_t *bus)
     return 0;
 }
 
+/* Wait until the frame of wire_bytes written when `written` (the write returned) has left
+ * the UART (file comment); returns the time it had. */
+static int64_t wait_sent(mbfb_bus_t *bus, int64_t written, int wire_bytes)
+{
+    int64_t char_us = bus->timing.char_us, now;
+    int64_t on_wire = written + (int64_t)wire_bytes * char_us;
+    int64_t step = char_us / 4 > 20 ? char_us / 4 : 20;
+    int64_t limit = on_wire + (int64_t)wire_bytes * char_us + 100000; /* a stuck UART */
+    unsigned int lsr;
+
+    sleep_until(on_wire);
+    for (;;) {
+        if (ioctl(bus->fd, TIOCSERGETLSR, &lsr) != 0)
+            break; /* no transmitter-empty bit to read: tcdrain below */
+        now = mbfb_now_us();
+        if (lsr & TIOCSER_TEMT)
+            return now;
+        if (now > limit)
+            break;
+        sleep_until(now + step);
+    }
+    while (tcdrain(bus->fd) != 0 && errno == EINTR) {
+    }
+    now = mbfb_now_us() + char_us; /* the shift register's last character */
+    return now > on_wire ? now : on_wire;
+}
+
 /* The frame of frame_len (slave + PDU) just written, with result sent_rc: wait until it
  * has left the UART, then dir_after_us, and switch the line back to receiving. */
 int mbfb_dir_end(mbfb_bus_t *bus, int frame_len, int sent_rc)
 {
     const dir_mode_t *m = mode_of(bus);
-    int64_t written = mbfb_now_us(), gone, on_wire;
+    int64_t written = mbfb_now_us();
     int rc;
 
     if (m->drive == NULL || bus->dir_priv == NULL)
         return sent_rc;
-    while (tcdrain(bus->fd) != 0 && errno == EINTR) {
-    }
-    gone = mbfb_now_us() + bus->timing.char_us; /* the shift register's last character */
-    on_wire = written +
-              (int64_t)mbfb_wire_len(bus->cfg.framing, frame_len) * bus->timing.char_us;
-    if (gone < on_wire)
-        gone = on_wire;
-    sleep_until(gone + bus->cfg.dir_after_us);
+    sleep_until(wait_sent(bus, written, mbfb_wire_len(bus->cfg.framing, frame_len)) +
+                bus->cfg.dir_after_us);
     rc = m->drive(bus, (dir_state_t *)bus->dir_priv, 0);
     return sent_rc != 0 ? sent_rc : rc;
 }
