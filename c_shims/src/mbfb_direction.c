@@ -20,8 +20,9 @@
  * earlier than the write began); from then on the UART's transmitter-empty
  * bit (TIOCSERGETLSR, every serial_core UART: FIFO and shift register both empty), polled
  * every quarter character, so the line drops within a fraction of a character of the last
- * stop bit. Where the driver has no such ioctl (USB adapters), tcdrain() and one character
- * more (many drivers report the FIFO empty while the last character is still going out).
+ * stop bit. Where the driver has no such ioctl, and on USB adapters (lsr_usable), tcdrain()
+ * and one character more (many drivers report the FIFO empty while the last character is
+ * still going out).
  * tcdrain() alone is not used on a UART: the kernel's uart_wait_until_sent sleeps in whole
  * jiffies (4 ms at HZ=250), longer than the t3.5 after which an instrument may answer.
  */
@@ -80,6 +81,8 @@ static void gpiod_load(void)
 /* ---- the modes -------------------------------------------------------------- */
 typedef struct dir_state {
     struct serial_rs485 saved;  /* KERNEL: the driver's RS-485 settings before ours   */
+    int lsr;                    /* RTS, GPIO: the port's transmitter-empty bit can be
+                                   polled (a UART on the board, not a USB adapter)     */
     struct gpiod_chip *chip;    /* GPIO */
     struct gpiod_line *line;
 } dir_state_t;
@@ -184,6 +187,20 @@ static const dir_mode_t *mode_of(const mbfb_bus_t *bus)
 
 /* ---- the backends' side ------------------------------------------------------ */
 
+/* 1 when the port's transmitter-empty bit can be polled: TIOCSERGETLSR answers and the
+ * port is not on USB. ftdi_sio answers it from the status bytes of the chip's last bulk-in
+ * packet, which can be older than the frame just written (and QEMU's FT232 never sets TEMT
+ * in them); tcdrain() asks the chip itself (GET_MODEM_STATUS). */
+static int lsr_usable(int fd)
+{
+    char driver[64], devpath[512];
+    unsigned int lsr;
+
+    return ioctl(fd, TIOCSERGETLSR, &lsr) == 0 &&
+           mbfb_serial_driver(fd, driver, sizeof driver, devpath, sizeof devpath) == 0 &&
+           strstr(devpath, "/usb") == NULL;
+}
+
 /* Put the freshly opened port into the bus's mode. */
 int mbfb_dir_open(mbfb_bus_t *bus)
 {
@@ -199,6 +216,7 @@ int mbfb_dir_open(mbfb_bus_t *bus)
         free(st);
         return rc;
     }
+    st->lsr = lsr_usable(bus->fd);
     bus->dir_priv = st;
     return 0;
 }
@@ -254,7 +272,7 @@ static int64_t wait_sent(mbfb_bus_t *bus, int64_t written, int wire_bytes)
 
     sleep_until(on_wire);
     for (;;) {
-        if (ioctl(bus->fd, TIOCSERGETLSR, &lsr) != 0)
+        if (!((dir_state_t *)bus->dir_priv)->lsr || ioctl(bus->fd, TIOCSERGETLSR, &lsr) != 0)
             break; /* no transmitter-empty bit to read: tcdrain below */
         now = mbfb_now_us();
         if (lsr & TIOCSER_TEMT)

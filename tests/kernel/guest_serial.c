@@ -33,7 +33,7 @@ static int ctl_fd = -1;
 /* One request on the control line, its answer into reply (may be NULL). */
 static int control(const char *req, char *reply, size_t n)
 {
-    char buf[1024];
+    char buf[16384]; /* a simulator's stats of five devices: about 2 KB */
     size_t len = 0;
 
     if (ctl_fd < 0) {
@@ -49,17 +49,21 @@ static int control(const char *req, char *reply, size_t n)
     }
     if (write(ctl_fd, req, strlen(req)) < 0 || write(ctl_fd, "\n", 1) < 0)
         return -1;
-    while (len < sizeof buf - 1) {
+    for (;;) { /* the whole line, whatever its length: the next answer starts after it */
         ssize_t r = read(ctl_fd, buf + len, 1);
         if (r <= 0)
             return -1;
         if (buf[len] == '\n')
             break;
-        len++;
+        if (len < sizeof buf - 1)
+            len++;
     }
     buf[len] = '\0';
-    if (reply != NULL)
-        snprintf(reply, n, "%s", buf);
+    if (reply != NULL && n > 0) {
+        size_t k = len < n - 1 ? len : n - 1;
+        memcpy(reply, buf, k);
+        reply[k] = '\0';
+    }
     return 0;
 }
 
@@ -161,18 +165,32 @@ static void devices(const char *port, int sim)
     mbfb_shutdown();
 }
 
-static void bauds(const char *port, const char *list)
+/* The bytes simulator `sim` has heard on its line so far (its line statistics). */
+static long sim_rx_bytes(int sim)
+{
+    char req[128], reply[256];
+    const char *p;
+    snprintf(req, sizeof req, "{\"sim\": %d, \"op\": \"stats\"}", sim);
+    if (control(req, reply, sizeof reply) != 0 || (p = strstr(reply, "\"rx_bytes\": ")) == NULL)
+        return -1;
+    return atol(p + strlen("\"rx_bytes\": "));
+}
+
+static void bauds(const char *port, int sim, const char *list)
 {
     char *copy = strdup(list), *save = NULL;
     for (char *b = strtok_r(copy, ",", &save); b != NULL; b = strtok_r(NULL, ",", &save)) {
         int baud = atoi(b);
         char what[64];
         snprintf(what, sizeof what, "baud %d", baud);
+        long heard = sim_rx_bytes(sim);
         mark(what, port);
         int bus = open_bus(port, baud, MBFB_FRAMING_RTU, MBFB_DIR_NONE, 0, 0);
         int rc = finish(mbfb_post(mbfb_dev_open(bus, 1), MBFB_FC_READ_HOLDING, 0, 1, NULL),
                         NULL, 0);
-        printf("RESULT bauds %s asked=%d rc=%d\n", port, baud, -rc);
+        usleep(100000); /* anything sent has reached the simulator by now */
+        printf("RESULT bauds %s asked=%d rc=%d sim_heard=%ld\n", port, baud, -rc,
+               sim_rx_bytes(sim) - heard);
         fflush(stdout);
         mbfb_shutdown();
     }
@@ -180,12 +198,14 @@ static void bauds(const char *port, const char *list)
     free(copy);
 }
 
-static void kernel_mode(const char *port)
+static void kernel_mode(const char *port, int sim)
 {
+    long heard = sim_rx_bytes(sim);
     mark("kernel", port);
     int bus = open_bus(port, 9600, MBFB_FRAMING_RTU, MBFB_DIR_KERNEL, 0, 0);
     int rc = finish(mbfb_post(mbfb_dev_open(bus, 1), MBFB_FC_READ_HOLDING, 0, 1, NULL), NULL, 0);
-    printf("RESULT kernel %s rc=%d\n", port, -rc);
+    usleep(200000); /* anything sent would have reached the simulator by now */
+    printf("RESULT kernel %s rc=%d sim_heard=%ld\n", port, -rc, sim_rx_bytes(sim) - heard);
     mbfb_shutdown();
     mark("kernel-end", port);
 }
@@ -204,16 +224,11 @@ static void rts(const char *port, int baud, int before, int after, int n)
     mbfb_shutdown();
 }
 
-static void latency(const char *port)
+/* ftdi_sio's latency timer in ms (sysfs), -1 where the port has none. */
+static int latency_timer(const char *port)
 {
-    int bus = open_bus(port, 9600, MBFB_FRAMING_RTU, MBFB_DIR_NONE, 0, 0);
-    int rc = finish(mbfb_post(mbfb_dev_open(bus, 1), MBFB_FC_READ_HOLDING, 0, 1, NULL), NULL, 0);
-    /* a second descriptor on the same tty sees the driver's settings */
-    int fd = open(port, O_RDWR | O_NOCTTY | O_NONBLOCK), low = -1, timer = -1;
-    struct serial_struct ss;
     char path[128];
-    if (fd >= 0 && ioctl(fd, TIOCGSERIAL, &ss) == 0)
-        low = (ss.flags & ASYNC_LOW_LATENCY) != 0;
+    int timer = -1;
     snprintf(path, sizeof path, "/sys/bus/usb-serial/devices/%s/latency_timer",
              strrchr(port, '/') + 1);
     FILE *f = fopen(path, "r");
@@ -222,8 +237,21 @@ static void latency(const char *port)
             timer = -1;
         fclose(f);
     }
-    printf("RESULT latency %s read=%d low_latency=%d latency_timer_ms=%d\n", port, -rc, low,
-           timer);
+    return timer;
+}
+
+static void latency(const char *port)
+{
+    int before = latency_timer(port);
+    int bus = open_bus(port, 9600, MBFB_FRAMING_RTU, MBFB_DIR_NONE, 0, 0);
+    int rc = finish(mbfb_post(mbfb_dev_open(bus, 1), MBFB_FC_READ_HOLDING, 0, 1, NULL), NULL, 0);
+    /* a second descriptor on the same tty sees the driver's settings */
+    int fd = open(port, O_RDWR | O_NOCTTY | O_NONBLOCK), low = -1;
+    struct serial_struct ss;
+    if (fd >= 0 && ioctl(fd, TIOCGSERIAL, &ss) == 0)
+        low = (ss.flags & ASYNC_LOW_LATENCY) != 0;
+    printf("RESULT latency %s read=%d low_latency=%d latency_timer_ms=%d before_open_ms=%d\n",
+           port, -rc, low, latency_timer(port), before);
     if (fd >= 0)
         close(fd);
     mbfb_shutdown();
@@ -259,9 +287,9 @@ int main(int argc, char **argv)
         if (strcmp(what, "devices") == 0)
             devices(port, sim);
         else if (strcmp(what, "bauds") == 0 && a[0])
-            bauds(port, a[0]);
+            bauds(port, sim, a[0]);
         else if (strcmp(what, "kernel") == 0)
-            kernel_mode(port);
+            kernel_mode(port, sim);
         else if (strcmp(what, "rts") == 0 && a[3])
             rts(port, atoi(a[0]), atoi(a[1]), atoi(a[2]), atoi(a[3]));
         else if (strcmp(what, "latency") == 0)

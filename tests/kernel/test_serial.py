@@ -117,26 +117,23 @@ def group_drivers(bed, program):
                       f"would run at {rate} " in said[0],
                       f"{port} {asked}: ErrorID {d['rc']}, the driver programmed {rate}, "
                       f"the shims said: {said}")
-            if d["rc"] == 14 and port == S1:
-                thr = [e for e in until_next_mark(run, f"baud {asked} {port}")
-                       if e[1] == "serial_write" and e[2].get("addr") == 0]
-                check(not thr, f"{port} {asked}: refused with nothing on the wire ({len(thr)})")
+            check(d["sim_heard"] == 0 if d["rc"] else d["sim_heard"] > 0,
+                  f"{port} {asked}: the simulator heard {d['sim_heard']} bytes")
             print(f"      {port} asked {asked}: programmed {rate}, ErrorID {d['rc']}")
     # Direction KERNEL: the 8250 driver here and ftdi_sio have no RS-485 mode: ErrorID 15 and
     # nothing reached the simulator
-    for i, port in enumerate((S1, U0)):
+    for port in (S1, U0):
         k = [d for d in results(run.output, "kernel") if d["port"] == port]
-        check(len(k) == 1 and k[0]["rc"] == 15, f"{port} Direction KERNEL: ErrorID 15 ({k})")
-        thr = [e for e in window(run, f"kernel {port}", f"kernel-end {port}")
-               if e[1] == "serial_write" and e[2].get("addr") == 0]
-        if port == S1:
-            check(not thr, f"{port} Direction KERNEL: no byte written to the UART ({len(thr)})")
+        check(len(k) == 1 and k[0]["rc"] == 15 and k[0]["sim_heard"] == 0,
+              f"{port} Direction KERNEL: ErrorID 15, the simulator heard nothing ({k})")
     # latency in force once the port is open
     for d in results(run.output, "latency"):
-        print(f"      {d['port']}: ASYNC_LOW_LATENCY {d['low_latency']}, "
-              f"latency_timer {d['latency_timer_ms']} ms")
+        print(f"      {d['port']}: ASYNC_LOW_LATENCY {d['low_latency']}, latency_timer "
+              f"{d['before_open_ms']} ms before the shims opened it, {d['latency_timer_ms']} ms "
+              f"after")
         if d["port"] == U0:
-            check(d["read"] == 0 and d["low_latency"] == 1 and d["latency_timer_ms"] == 1,
+            check(d["read"] == 0 and d["low_latency"] == 1 and d["latency_timer_ms"] == 1 and
+                  d["before_open_ms"] == 16,
                   f"{U0}: low latency in force after the shims opened it ({d})")
 
 
@@ -190,9 +187,13 @@ def group_rts(bed, program):
               f"frame's last bit (one character {ch:.0f} us + DirAfterUs {after})")
         check(min(lead) >= before, f"{S1}: RTS asserted at least DirBeforeUs before the first byte")
         check(min(late) >= 0, f"{S1}: RTS never released before the frame's last bit")
-        check(max(late) <= ch + after + TCG_SLACK_US,
-              f"{S1}: RTS released within one character + DirAfterUs of the last bit "
-              f"(+{TCG_SLACK_US} us for the guest's timer under TCG)")
+        # the median: QEMU's vCPU thread is now and then not scheduled for milliseconds on a
+        # loaded machine (both edges then move; the maximum is printed above, not asserted);
+        # tcdrain's jiffy (9 ms late at 9600) is far outside
+        median = sorted(late)[len(late) // 2]
+        check(median <= ch + after + TCG_SLACK_US,
+              f"{S1}: RTS released within one character + DirAfterUs of the last bit, median "
+              f"{median:.0f} us (+{TCG_SLACK_US} us for the guest's timers under TCG)")
     # FTDI: RTS is a control transfer (FTDI_SIO_SET_MODEM_CTRL, request 0x4001: value bit 9
     # says RTS is set, bit 1 its level);
     # the data's bulk transfers are not traced: the pulse must last the frame's wire time and
@@ -221,7 +222,7 @@ def group_rts(bed, program):
               f"RTS on: RTS {'released before it' if max(pulses) * 1e6 < before + wire + t35 + 1000 else 'still on then'}")
 
 
-TCG_SLACK_US = 2000
+TCG_SLACK_US = 1000
 
 
 def main():
