@@ -12,6 +12,7 @@
  *     rts:PORT:SIM:BAUD:BEFORE:AFTER:N   Direction RTS, N reads between marks
  *     latency:PORT:SIM     the low-latency flag and ftdi_sio's latency_timer once open
  *     bench:PORT:SIM:N     N one-register reads, the elapsed time (bench/kernel_wire.py)
+ *     write:PATH:VALUE     write VALUE to a sysfs file (e.g. a UART's rx_trig_bytes)
  * Lines: "RESULT what port key=value ...". The control line (/dev/ttyS2, bed.py) carries the
  * marks and the simulator requests.
  */
@@ -282,6 +283,14 @@ int main(int argc, char **argv)
         if (what == NULL || port == NULL || simno == NULL) {
             fprintf(stderr, "guest-serial: bad step %s\n", argv[i]);
             return 2;
+        }
+        if (strcmp(what, "write") == 0) { /* write:PATH:VALUE */
+            FILE *f = fopen(port, "w");
+            int ok = f != NULL && fputs(simno, f) >= 0;
+            if (f != NULL && fclose(f) != 0)
+                ok = 0;
+            printf("RESULT write %s value=%s ok=%d\n", port, simno, ok);
+            continue;
         }
         int sim = atoi(simno);
         if (strcmp(what, "devices") == 0)
