@@ -28,6 +28,7 @@
 #include <unistd.h>
 
 #include "mbfb.h"
+#include "mbfb_test.h" /* t_cfg, t_wait, t_now_us (tests/shims/mbfb_test_peer.c) */
 
 static int ctl_fd = -1;
 
@@ -83,36 +84,23 @@ static void sim_offline(int sim, int addr, int on)
     control(req, NULL, 0);
 }
 
-static int64_t now_us(void)
-{
-    struct timespec ts;
-    clock_gettime(CLOCK_MONOTONIC, &ts);
-    return (int64_t)ts.tv_sec * 1000000 + ts.tv_nsec / 1000;
-}
-
-/* Wait for a request: its result (0 or a negative error), values into v. */
+/* Wait for a request (mbfb_test_peer.c's t_wait): its result (0 or a negative error),
+ * values into v. */
 static int finish(int req, uint16_t *v, int max)
 {
     if (req < 0)
         return req;
-    while (mbfb_poll(req) == MBFB_REQ_QUEUED || mbfb_poll(req) == MBFB_REQ_ACTIVE)
-        usleep(1000);
+    t_wait(req);
     int rc = mbfb_take(req, v, max);
     return rc < 0 ? rc : 0;
 }
 
+/* The bed's lines: 8N2 (the MV-D94's format), the default response timeout and retries. */
 static int open_bus(const char *port, int baud, int framing, int direction, int before,
                     int after)
 {
-    mbfb_bus_config_t c;
-    memset(&c, 0, sizeof c);
-    c.port = port;
-    c.baud = baud;
-    c.parity = 'N';
-    c.data_bits = 8;
+    mbfb_bus_config_t c = t_cfg(port, baud, framing, 0, -1);
     c.stop_bits = 2;
-    c.framing = framing;
-    c.retries = -1;
     c.direction = direction;
     c.dir_before_us = before;
     c.dir_after_us = after;
@@ -153,12 +141,12 @@ static void devices(const char *port, int sim)
     sim_offline(sim, 1, 1);
     gone = finish(mbfb_post(dev, MBFB_FC_READ_HOLDING, 0, 1, NULL), NULL, 0);
     sim_offline(sim, 1, 0);
-    int64_t t0 = now_us();
-    while (now_us() - t0 < 10000000 &&
+    int64_t t0 = t_now_us();
+    while (t_now_us() - t0 < 10000000 &&
            (back = finish(mbfb_post(dev, MBFB_FC_READ_HOLDING, 0, 1, NULL), NULL, 0)) != 0)
         usleep(100000);
     printf("RESULT devices %s device=mvd94 pulled=%d back=%d back_ms=%d\n", port, -gone, -back,
-           (int)((now_us() - t0) / 1000));
+           (int)((t_now_us() - t0) / 1000));
     mbfb_shutdown();
     bus = open_bus(port, 9600, MBFB_FRAMING_ASCII, MBFB_DIR_NONE, 0, 0);
     device_case(port, bus, "mts9-ascii", 5, 0, 2, MBFB_FC_WRITE_MULTIPLE, MBFB_WRITE_ONCE,
@@ -263,11 +251,11 @@ static void bench(const char *port, int n)
     int bus = open_bus(port, 9600, MBFB_FRAMING_RTU, MBFB_DIR_NONE, 0, 0);
     int dev = mbfb_dev_open(bus, 1), good = 0;
     finish(mbfb_post(dev, MBFB_FC_READ_HOLDING, 0, 1, NULL), NULL, 0); /* opened */
-    int64_t t0 = now_us();
+    int64_t t0 = t_now_us();
     for (int i = 0; i < n; i++)
         good += finish(mbfb_post(dev, MBFB_FC_READ_HOLDING, 0, 1, NULL), NULL, 0) == 0;
     printf("RESULT bench %s n=%d good=%d elapsed_us=%lld\n", port, n, good,
-           (long long)(now_us() - t0));
+           (long long)(t_now_us() - t0));
     mbfb_shutdown();
 }
 
