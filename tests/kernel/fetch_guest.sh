@@ -28,16 +28,24 @@ if [ -n "${MBFB_GUEST_KERNEL_DEB:-}" ]; then
     cp "$MBFB_GUEST_KERNEL_DEB" "$cache/deb/"
 else
     command -v apt-get >/dev/null || { echo "no apt-get to download the guest kernel" >&2; exit 3; }
+    # a metapackage (linux-image-amd64) -> the versioned image it depends on
+    resolve() {
+        local dep
+        dep=$(apt-cache depends "$1" 2>/dev/null |
+            sed -n 's/^ *Depends: \(linux-image-[0-9].*\)$/\1/p' | head -n1)
+        echo "${dep:-$1}"
+    }
+    updated=0
     for p in $(grep -v '^\s*#' "$here/.ci/guest-packages.txt" | xargs); do
-        # a metapackage (linux-image-amd64) -> the versioned image it depends on
-        dep=$(apt-cache depends "$p" 2>/dev/null | sed -n 's/^ *Depends: \(linux-image-[0-9].*\)$/\1/p' | head -n1)
-        [ -n "$dep" ] && p=$dep
-        if ! (cd "$cache/deb" && apt-get download -q "$p" >/dev/null 2>"$cache/apt.err"); then
-            # the package lists may be missing or stale (a fresh container)
-            if [ "$(id -u)" = 0 ]; then apt-get update -q >/dev/null 2>&1 || true; fi
-            (cd "$cache/deb" && apt-get download -q "$p" >/dev/null 2>"$cache/apt.err") || {
-                echo "apt-get download $p failed: $(tail -n1 "$cache/apt.err")" >&2; exit 3; }
-        fi
+        until (cd "$cache/deb" && apt-get download -q "$(resolve "$p")" >/dev/null 2>"$cache/apt.err"); do
+            # the package lists may be missing or stale (a fresh container): update once
+            if [ "$updated" = 1 ] || [ "$(id -u)" != 0 ]; then
+                echo "apt-get download $(resolve "$p") failed: $(tail -n1 "$cache/apt.err")" >&2
+                exit 3
+            fi
+            apt-get update -q >/dev/null 2>&1 || true
+            updated=1
+        done
     done
 fi
 for d in "$cache"/deb/*.deb; do
