@@ -5,7 +5,8 @@
  *
  *   guest-serial STEP...   each STEP is  what:port:sim[:arguments,...]
  *     devices:PORT:SIM     the simulator's devices (tests/kernel/test_serial.py starts them:
- *                          MV-D94 1, VD 2, FDC 3, MT-S9 4 in RTU; MT-S9 5 in ASCII): each read,
+ *                          MV-D94 1, VD 2, FDC 3, MT-S9 4 in RTU; MT-S9 5 in ASCII, 6 in RTU
+ *                          without CRC): each read,
  *                          a set point written (Done) and read back, device 1 pulled and back
  *     bauds:PORT:SIM:B,... one bus per baud: the open's result and one read
  *     kernel:PORT:SIM      Direction KERNEL: the result, and the simulator heard nothing
@@ -150,6 +151,10 @@ static void devices(const char *port, int sim)
     mbfb_shutdown();
     bus = open_bus(port, 9600, MBFB_FRAMING_ASCII, MBFB_DIR_NONE, 0, 0);
     device_case(port, bus, "mts9-ascii", 5, 0, 2, MBFB_FC_WRITE_MULTIPLE, MBFB_WRITE_ONCE,
+                preset, 2);
+    mbfb_shutdown();
+    bus = open_bus(port, 9600, MBFB_FRAMING_RTU_NOCRC, MBFB_DIR_NONE, 0, 0);
+    device_case(port, bus, "mts9-nocrc", 6, 0, 2, MBFB_FC_WRITE_MULTIPLE, MBFB_WRITE_ONCE,
                 preset, 2);
     mbfb_shutdown();
 }

@@ -3,7 +3,7 @@
 simulator (tests/kernel/bed.py; docs/wiring.md "What the drivers allow").
 
     test_serial.py GROUP BUILD_DIR GUEST_PROGRAM
-GROUP drivers: the device traffic (RTU and ASCII), the bauds against QEMU's trace, Direction
+GROUP drivers: the device traffic (RTU, ASCII, RTU without CRC), the bauds against QEMU's trace, Direction
 'KERNEL' refused, the latency in force. GROUP rts: Direction 'RTS' on a paced line, the RTS
 edges against the frame's bits in QEMU's trace.
 Exit 0 when every check holds, 1 on a failed check, 77 (skipped) without QEMU or the kernel.
@@ -16,7 +16,11 @@ from bed import Bed, Port, Skip, skip_or_fail  # noqa: E402
 
 USB_MODULES = ["usb-common", "usbcore", "xhci-hcd", "xhci-pci", "usbserial", "ftdi_sio"]
 DEVICES = ("--baud 9600 --format 8N2 --device mvd94:1:SV=100.0,DP=1 --device vd:2 "
-           "--device fdc100:3:SP1=150.0 --device mts9:4:framing=rtu --device mts9:5:framing=ascii")
+           "--device fdc100:3:SP1=150.0 --device mts9:4:framing=rtu --device mts9:5:framing=ascii "
+           "--device mts9:6:framing=nocrc")
+# the first word each read must show: the values DEVICES gives the simulator (MV-D94 SV 100.0
+# with one decimal; FDC SP1 150.0: M = A * 10 + 19999)
+FIRST = {"mvd94": 1000, "fdc100": 21499}
 BAUDS = [9600, 14400, 19200, 28800, 38400, 57600, 76800, 115200]
 TOLERANCE = 0.01  # c_shims/src/mbfb_baud.c, MBFB_BAUD_TOLERANCE_PERMILLE
 S1, U0 = "/dev/ttyS1", "/dev/ttyUSB0"
@@ -91,10 +95,10 @@ def group_drivers(bed, program):
     for port in (S1, U0):
         seen = {d["device"]: d for d in results(run.output, "devices") if d["port"] == port
                 and "read" in d}
-        for name in ("mvd94", "vd", "fdc100", "mts9-rtu", "mts9-ascii"):
+        for name in ("mvd94", "vd", "fdc100", "mts9-rtu", "mts9-ascii", "mts9-nocrc"):
             d = seen.get(name)
             check(d is not None and d["read"] == 0 and d["write"] == 0 and d["readback"] == 0
-                  and d["back"] == d["asked"],
+                  and d["back"] == d["asked"] and d["first"] == FIRST.get(name, d["first"]),
                   f"{port} {name}: read, set point Done, read back equal ({d})")
         pulled = [d for d in results(run.output, "devices") if d["port"] == port
                   and "pulled" in d]
