@@ -20,9 +20,9 @@
  * earlier than the write began); from then on the UART's transmitter-empty
  * bit (TIOCSERGETLSR, every serial_core UART: FIFO and shift register both empty), polled
  * every quarter character, so the line drops within a fraction of a character of the last
- * stop bit. Where the driver has no such ioctl, and on USB adapters (lsr_usable), tcdrain()
- * and one character more (many drivers report the FIFO empty while the last character is
- * still going out).
+ * stop bit. Where the driver has no such ioctl, and on USB adapters (lsr_usable), tcdrain(),
+ * and one character more when it had to wait (many drivers report the FIFO empty while the
+ * last character is still going out).
  * tcdrain() alone is not used on a UART: the kernel's uart_wait_until_sent sleeps in whole
  * jiffies (4 ms at HZ=250), longer than the t3.5 after which an instrument may answer.
  */
@@ -281,10 +281,15 @@ static int64_t wait_sent(mbfb_bus_t *bus, int64_t written, int wire_bytes)
             break;
         sleep_until(now + step);
     }
+    now = mbfb_now_us();
     while (tcdrain(bus->fd) != 0 && errno == EINTR) {
     }
-    now = mbfb_now_us() + char_us; /* the shift register's last character */
-    return now > on_wire ? now : on_wire;
+    /* drained at once: the driver had nothing left to send when the frame's time was up;
+     * else it was still sending then, and its "drained" may be the FIFO's: one character
+     * more for the shift register */
+    if (mbfb_now_us() - now <= step)
+        return now > on_wire ? now : on_wire;
+    return mbfb_now_us() + char_us;
 }
 
 /* The frame of frame_len (slave + PDU) just written, with result sent_rc: wait until it
