@@ -68,8 +68,9 @@ extern "C" {
 #define MBFB_E_NOMEM        12  /* setup could not allocate / too many buses/devices  */
 #define MBFB_E_UNCONFIRMED  13  /* write outcome unknown: no valid reply and the read-back
                                    did not show the value; not repeated (mbfb_post_write) */
-#define MBFB_E_BAUD         14  /* baud rate the serial driver cannot set exactly (when
-                                   the port opens), or above 4000000 (mbfb_bus_open)    */
+#define MBFB_E_BAUD         14  /* baud rate the serial driver cannot set within 1 % (when
+                                   the port opens; a stderr line names the rate it would
+                                   run at), or above 4000000 (mbfb_bus_open)            */
 #define MBFB_E_DIRECTION    15  /* RS-485 direction control refused when the port opens: the
                                    driver has no kernel RS-485 mode, RTS cannot be set, the
                                    GPIO chip or line is missing or busy, or no libgpiod
@@ -114,7 +115,9 @@ extern "C" {
 #define MBFB_DIR_KERNEL 1 /* the UART driver's RS-485 mode (TIOCSRS485): the kernel drives
                              RTS around each frame, with the delays below (rounded up to ms) */
 #define MBFB_DIR_RTS    2 /* the worker asserts RTS before each request and releases it
-                             once the last bit has left (tcdrain + one character)        */
+                             once the last bit has left (the UART's transmitter-empty bit
+                             after the frame's wire time; tcdrain + one character where
+                             the driver has none, as on USB adapters)                    */
 #define MBFB_DIR_GPIO   3 /* the same with a GPIO line (Linux GPIO character device, through
                              libgpiod 2 or 1, loaded at run time)                         */
 #define MBFB_DIR_MAX_DELAY_US 100000 /* dir_before_us / dir_after_us at most 100 ms        */

@@ -82,18 +82,22 @@ static int lm_connect(mbfb_bus_t *bus, modbus_t *ctx)
 }
 
 /* Open and configure the serial port with libmodbus (every serial framing); a baud outside
- * libmodbus's table (which it would silently run at 9600) is then set exactly with termios2
- * (mbfb_baud.c), and the direction control put in place (mbfb_direction.c): a driver that
- * refuses either closes the port again with -MBFB_E_BAUD or -MBFB_E_DIRECTION. */
+ * libmodbus's table (which it would silently run at 9600) is then set with termios2 and the
+ * rate the driver will run at checked (mbfb_baud.c), low latency asked of a USB adapter
+ * (mbfb_serial.c), and the direction control put in place (mbfb_direction.c): a driver that
+ * refuses the baud or the direction closes the port again with -MBFB_E_BAUD or
+ * -MBFB_E_DIRECTION. */
 int mbfb_lm_serial_open(mbfb_bus_t *bus)
 {
     const mbfb_bus_config_t *c = &bus->cfg;
     int rc = lm_connect(bus, modbus_new_rtu(c->port, c->baud, c->parity, c->data_bits,
                                             c->stop_bits));
-    if (rc == 0 && !mbfb_lm_baud_ok(c->baud) && mbfb_serial_set_baud(bus->fd, c->baud) < 0)
-        rc = -MBFB_E_BAUD;
-    else if (rc == 0)
+    if (rc == 0)
+        rc = mbfb_serial_set_baud(bus, !mbfb_lm_baud_ok(c->baud));
+    if (rc == 0) {
+        mbfb_serial_low_latency(bus->fd); /* best effort: USB adapters (mbfb_serial.c) */
         rc = mbfb_dir_open(bus); /* -MBFB_E_DIRECTION: closed again before any byte */
+    }
     if (rc < 0 && bus->fd >= 0)
         mbfb_lm_close(bus);
     return rc;

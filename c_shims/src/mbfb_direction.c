@@ -12,12 +12,16 @@
  * - MBFB_DIR_GPIO: a line of a GPIO chip through libgpiod 2 or 1, loaded at run time
  *   (mbfb_gpio.c).
  * For RTS and GPIO the worker switches the line on, waits dir_before_us, sends, waits until
- * the frame has left the UART, waits dir_after_us and switches it off. "Has left" is the
- * later of tcdrain() plus one character (the shift register: many drivers report the FIFO
- * empty while the last character is still going out) and the frame's own time on the wire
- * from when the write returned (a driver whose tcdrain returns early cannot make the frame
- * shorter; the frame cannot have begun later than that, so the line is never dropped early
- * however long the thread waited between raising the line and the write).
+ * the frame has left the UART, waits dir_after_us and switches it off. "Has left": never
+ * before the frame's own time on the wire from when the write returned (it cannot have begun
+ * earlier than the write began); from then on the UART's transmitter-empty
+ * bit (TIOCSERGETLSR, every serial_core UART: FIFO and shift register both empty), polled
+ * every quarter character, so the line drops within a fraction of a character of the last
+ * stop bit. Where the driver has no such ioctl, and on USB adapters (lsr_usable), tcdrain(),
+ * and one character more when it had to wait (many drivers report the FIFO empty while the
+ * last character is still going out).
+ * tcdrain() alone is not used on a UART: the kernel's uart_wait_until_sent sleeps in whole
+ * jiffies (4 ms at HZ=250), longer than the t3.5 after which an instrument may answer.
  */
 #ifndef _GNU_SOURCE
 #define _GNU_SOURCE
@@ -36,6 +40,8 @@
 /* ---- the modes -------------------------------------------------------------- */
 typedef struct dir_state {
     struct serial_rs485 saved;  /* KERNEL: the driver's RS-485 settings before ours   */
+    int lsr;                    /* RTS, GPIO: the port's transmitter-empty bit can be
+                                   polled (a UART on the board, not a USB adapter)     */
     mbfb_gpio_t *gpio;          /* GPIO: the requested line                         */
 } dir_state_t;
 
@@ -128,6 +134,20 @@ static const dir_mode_t *mode_of(const mbfb_bus_t *bus)
 
 /* ---- the backends' side ------------------------------------------------------ */
 
+/* 1 when the port's transmitter-empty bit can be polled: TIOCSERGETLSR answers and the
+ * port is not on USB. ftdi_sio answers it from the status bytes of the chip's last bulk-in
+ * packet, which can be older than the frame just written (and QEMU's FT232 never sets TEMT
+ * in them); tcdrain() asks the chip itself (GET_MODEM_STATUS). */
+static int lsr_usable(int fd)
+{
+    char driver[64], devpath[512];
+    unsigned int lsr;
+
+    return ioctl(fd, TIOCSERGETLSR, &lsr) == 0 &&
+           mbfb_serial_driver(fd, driver, sizeof driver, devpath, sizeof devpath) == 0 &&
+           strstr(devpath, "/usb") == NULL;
+}
+
 /* Put the freshly opened port into the bus's mode. */
 int mbfb_dir_open(mbfb_bus_t *bus)
 {
@@ -143,6 +163,7 @@ int mbfb_dir_open(mbfb_bus_t *bus)
         free(st);
         return rc;
     }
+    st->lsr = lsr_usable(bus->fd);
     bus->dir_priv = st;
     return 0;
 }
@@ -186,24 +207,50 @@ int mbfb_dir_begin(mbfb_bus_t *bus)
     return 0;
 }
 
+/* Wait until the frame of wire_bytes written when `written` (the write returned) has left
+ * the UART (file comment); returns the time it had. */
+static int64_t wait_sent(mbfb_bus_t *bus, int64_t written, int wire_bytes)
+{
+    int64_t char_us = bus->timing.char_us, now;
+    int64_t on_wire = written + (int64_t)wire_bytes * char_us;
+    int64_t step = char_us / 4 > 20 ? char_us / 4 : 20;
+    int64_t limit = on_wire + (int64_t)wire_bytes * char_us + 100000; /* a stuck UART */
+    unsigned int lsr;
+
+    sleep_until(on_wire);
+    for (;;) {
+        if (!((dir_state_t *)bus->dir_priv)->lsr || ioctl(bus->fd, TIOCSERGETLSR, &lsr) != 0)
+            break; /* no transmitter-empty bit to read: tcdrain below */
+        now = mbfb_now_us();
+        if (lsr & TIOCSER_TEMT)
+            return now;
+        if (now > limit)
+            break;
+        sleep_until(now + step);
+    }
+    now = mbfb_now_us();
+    while (tcdrain(bus->fd) != 0 && errno == EINTR) {
+    }
+    /* drained at once: the driver had nothing left to send when the frame's time was up;
+     * else it was still sending then, and its "drained" may be the FIFO's: one character
+     * more for the shift register */
+    if (mbfb_now_us() - now <= step)
+        return now > on_wire ? now : on_wire;
+    return mbfb_now_us() + char_us;
+}
+
 /* The frame of frame_len (slave + PDU) just written, with result sent_rc: wait until it
  * has left the UART, then dir_after_us, and switch the line back to receiving. */
 int mbfb_dir_end(mbfb_bus_t *bus, int frame_len, int sent_rc)
 {
     const dir_mode_t *m = mode_of(bus);
-    int64_t written = mbfb_now_us(), gone, on_wire;
+    int64_t written = mbfb_now_us();
     int rc;
 
     if (m->drive == NULL || bus->dir_priv == NULL)
         return sent_rc;
-    while (tcdrain(bus->fd) != 0 && errno == EINTR) {
-    }
-    gone = mbfb_now_us() + bus->timing.char_us; /* the shift register's last character */
-    on_wire = written +
-              (int64_t)mbfb_wire_len(bus->cfg.framing, frame_len) * bus->timing.char_us;
-    if (gone < on_wire)
-        gone = on_wire;
-    sleep_until(gone + bus->cfg.dir_after_us);
+    sleep_until(wait_sent(bus, written, mbfb_wire_len(bus->cfg.framing, frame_len)) +
+                bus->cfg.dir_after_us);
     rc = m->drive(bus, (dir_state_t *)bus->dir_priv, 0);
     return sent_rc != 0 ? sent_rc : rc;
 }

@@ -22,7 +22,7 @@ const char *mbfb_strerror(int code)
         "out of memory or too many buses/devices",
         "write unconfirmed: no valid echo and the read-back did not show the value; "
         "not repeated",
-        "baud rate the serial driver cannot set exactly",
+        "baud rate the serial driver cannot set within 1 % (see the stderr line for the rate)",
         "RS-485 direction control refused by the port, driver or GPIO line: nothing sent",
         "not done: the PLC stopped scanning the block (plan stopped, queued request not sent)",
     };

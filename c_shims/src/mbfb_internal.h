@@ -194,9 +194,16 @@ void mbfb_lm_close(struct mbfb_bus *bus);
 int  mbfb_errno_to_err(int err);
 /** 1 if libmodbus's RTU backend sets `baud` exactly (its speed table), else 0. */
 int  mbfb_lm_baud_ok(int baud);
-/** Set `baud` exactly on an open serial port with termios2/BOTHER and read it back
- *  (mbfb_baud.c): 0, or -MBFB_E_BAUD when the driver refuses it or sets another rate. */
-int  mbfb_serial_set_baud(int fd, int baud);
+/** Set bus->cfg.baud on the open port with termios2/BOTHER (when `set`: a rate outside
+ *  libmodbus's table) and check the rate the driver will run at (mbfb_baud.c): 0, or
+ *  -MBFB_E_BAUD when the driver refuses it or runs more than 1 % off (one stderr line per
+ *  bus names the rate). */
+int  mbfb_serial_set_baud(struct mbfb_bus *bus, int set);
+/** The sysfs driver name and device path of the serial port fd (mbfb_serial.c): 0 or -1. */
+int  mbfb_serial_driver(int fd, char *driver, size_t n, char *devpath, size_t m);
+/** ASYNC_LOW_LATENCY on a USB serial adapter (ftdi_sio: latency timer 1 ms instead of 16):
+ *  1 when in force after the call, else 0 (mbfb_serial.c). */
+int  mbfb_serial_low_latency(int fd);
 
 /* RS-485 direction control (mbfb_direction.c); the serial backends call these. With
  * MBFB_DIR_NONE (and KERNEL, where the kernel switches) begin and end do nothing. */
@@ -371,6 +378,7 @@ typedef struct mbfb_bus {
     void *dir_priv;          /* the direction mode's state (mbfb_direction.c)     */
     mbfb_timing_t timing;
     int fd;                  /* the port's file descriptor, -1 when closed        */
+    int baud_said;           /* worker: the baud refusal was printed (once per bus) */
     int64_t quiet_from_us;   /* the line is silent from this time on              */
     int64_t reopen_us;       /* worker: plans try to open the port again from then */
     int timeout_us;          /* response timeout of the current attempt           */

@@ -1,16 +1,76 @@
 /*
- * mbfb_serial.c - serial-line helpers every serial framing shares: the watched silence
- * before a request, waiting for input, writing a whole frame.
+ * mbfb_serial.c - serial-line helpers every serial framing shares: the port's driver and its
+ * low-latency mode when the port opens, the watched silence before a request, waiting for
+ * input, writing a whole frame.
  */
 #ifndef _GNU_SOURCE
 #define _GNU_SOURCE /* ppoll (g++ defines it already) */
 #endif
 #include <errno.h>
+#include <limits.h>
+#include <linux/serial.h> /* struct serial_struct, ASYNC_LOW_LATENCY */
 #include <poll.h>
+#include <stdio.h>
+#include <stdlib.h>
 #include <string.h>
+#include <sys/ioctl.h>
+#include <sys/stat.h>
+#include <sys/sysmacros.h>
 #include <unistd.h>
 
 #include "mbfb_internal.h"
+
+/* The driver of the serial port fd (the name of its sysfs driver: "serial8250", "serial"
+ * for the 8250 on PNP and PCI, "ftdi_sio", "cp210x", ...) and its sysfs device path. */
+int mbfb_serial_driver(int fd, char *driver, size_t n, char *devpath, size_t m)
+{
+    struct stat st;
+    char link[128], target[PATH_MAX];
+    ssize_t len;
+    const char *base;
+
+    if (fstat(fd, &st) != 0 || !S_ISCHR(st.st_mode))
+        return -1;
+    snprintf(link, sizeof link, "/sys/dev/char/%u:%u/device", major(st.st_rdev),
+             minor(st.st_rdev));
+    if (realpath(link, target) == NULL || strlen(target) >= m)
+        return -1;
+    strcpy(devpath, target);
+    snprintf(link, sizeof link, "/sys/dev/char/%u:%u/device/driver", major(st.st_rdev),
+             minor(st.st_rdev));
+    if ((len = readlink(link, target, sizeof target - 1)) <= 0)
+        return -1;
+    target[len] = '\0';
+    base = strrchr(target, '/');
+    base = base != NULL ? base + 1 : target;
+    if (strlen(base) >= n)
+        return -1;
+    strcpy(driver, base);
+    return 0;
+}
+
+/* Low latency where the driver offers it: a USB serial adapter holds received bytes until
+ * its buffer fills or its latency timer runs out (ftdi_sio: 16 ms by default), so every reply
+ * waits for it; ASYNC_LOW_LATENCY (TIOCSSERIAL, allowed to any user) makes ftdi_sio set the
+ * timer to 1 ms. Only on USB adapters: a UART on the board hands its bytes over at its
+ * interrupt and has nothing to shorten. Best effort: a driver without TIOCSSERIAL keeps its
+ * latency, which the reply and byte timeouts allow for (mbfb_timing.c). Returns 1 when the
+ * flag is in force after the call, else 0. */
+int mbfb_serial_low_latency(int fd)
+{
+    struct serial_struct ss;
+    char driver[64], devpath[PATH_MAX];
+
+    if (mbfb_serial_driver(fd, driver, sizeof driver, devpath, sizeof devpath) != 0 ||
+        strstr(devpath, "/usb") == NULL || ioctl(fd, TIOCGSERIAL, &ss) != 0)
+        return 0;
+    if (!(ss.flags & ASYNC_LOW_LATENCY)) {
+        ss.flags |= ASYNC_LOW_LATENCY;
+        if (ioctl(fd, TIOCSSERIAL, &ss) != 0 || ioctl(fd, TIOCGSERIAL, &ss) != 0)
+            return 0;
+    }
+    return (ss.flags & ASYNC_LOW_LATENCY) != 0;
+}
 
 /* ppoll for input, EINTR retried. */
 int mbfb_fd_wait_input(int fd, int64_t wait_us)

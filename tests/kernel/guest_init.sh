@@ -1,0 +1,26 @@
+#!/bin/sh
+# The kernel test bed's init (tests/kernel/bed.py): load the modules, run the setup lines, wait
+# for the ports, run the test program with its output kept in memory, print it, power off.
+/bin/busybox --install -s /bin
+export PATH=/bin
+mkdir -p /proc /sys /dev
+mount -t proc proc /proc
+mount -t sysfs sys /sys
+mount -t devtmpfs dev /dev
+mkdir -p /tmp && mount -t tmpfs tmp /tmp
+for m in $(cat /etc/bed/modules); do
+    insmod "/lib/modules/$m.ko" || echo "BED: insmod $m failed"
+done
+sh /etc/bed/setup || echo "BED: setup failed"
+for d in $(cat /etc/bed/wait); do
+    n=0
+    while [ ! -e "$d" ] && [ $n -lt 200 ]; do sleep 0.05; n=$((n + 1)); done
+    [ -e "$d" ] || echo "BED: $d did not appear"
+done
+/bin/test-program $(cat /etc/bed/args) >/tmp/out 2>&1
+rc=$?
+echo "BED: output begin"
+cat /tmp/out
+echo "BED: output end"
+echo "BED: exit $rc"
+poweroff -f
