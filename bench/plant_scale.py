@@ -52,6 +52,7 @@ import argparse
 import glob
 import json
 import os
+import pickle
 import re
 import shutil
 import statistics
@@ -165,6 +166,16 @@ def per_device_wire(line: wp.Line, t0: float, t1: float) -> dict[int, tuple[int,
     return {a: (n, us) for a, (n, us) in out.items()}
 
 
+def line_gaps(line: wp.Line, t0: float, t1: float) -> dict:
+    """Silence before each request in [t0, t1) (us): mean, p99, max; the shims' least silence."""
+    fr = line.frames()
+    gaps = [t - (fr[i - 1][0] + fr[i - 1][2] * line.char_us)
+            for i, (t, d, _, _) in enumerate(fr) if i and d == "M>S" and t0 <= t < t1]
+    gaps.sort()
+    return {"mean_ms": statistics.mean(gaps) / 1000, "p99_ms": gaps[int(0.99 * (len(gaps) - 1))] / 1000,
+            "max_ms": gaps[-1] / 1000, "min_ms": gaps[0] / 1000} if gaps else {}
+
+
 def wire_run(exe: str, ptyline: str, tmp: str, devs, args) -> dict:
     lines = open_lines(ptyline, tmp, devs, args.lines, args.baud)
     try:
@@ -176,6 +187,7 @@ def wire_run(exe: str, ptyline: str, tmp: str, devs, args) -> dict:
             s1, t1, c1, w1 = plc.snapshot(), [x.now_us() for x in lines], thread_cpu(pid), time.monotonic()
         figs = [x.figures(a, b) for x, a, b in zip(lines, t0, t1)]
         wire = [per_device_wire(x, a, b) for x, a, b in zip(lines, t0, t1)]
+        gaps = [line_gaps(x, a, b) for x, a, b in zip(lines, t0, t1)]
     finally:
         for x in lines:
             x.close()
@@ -188,7 +200,7 @@ def wire_run(exe: str, ptyline: str, tmp: str, devs, args) -> dict:
     scans = s1["scan"] - s0["scan"]
     counts = [(s1["QW"][str(n)] - s0["QW"][str(n)]) & 0xFFFF for n in range(len(devs))]
     return {"wall": wall, "scans": scans, "window": scans * args.task_ms / 1000.0, "counts": counts,
-            "lines": figs, "wire": wire,
+            "lines": figs, "wire": wire, "gaps": gaps,
             "cpu_stat": [(c1[t][0] - c0[t][0]) / tck / wall for t in workers],
             "cpu_ns": [(c1[t][1] - c0[t][1]) / 1e9 / wall for t in workers],
             "scan_cpu_ns": (c1[pid][1] - c0[pid][1]) / 1e9 / wall,
@@ -273,7 +285,14 @@ def main() -> int:
     ap.add_argument("--skip-scans", type=int, default=250, help="the plant's first scans left out")
     ap.add_argument("--alone-skip-scans", type=int, default=50, help="a block alone: first scans left out")
     ap.add_argument("--skip", default="", help="comma list of: wire,cost")
+    ap.add_argument("--save", metavar="FILE", help="also keep the raw results (pickle) in FILE")
+    ap.add_argument("--from", dest="saved", metavar="FILE", help="only the report again, from a --save FILE")
     args = ap.parse_args()
+    if args.saved:
+        with open(args.saved, "rb") as fh:
+            res, saved_args = pickle.load(fh)
+        report(res, plant(saved_args.lines, saved_args.per_line), saved_args)
+        return 0
     skip = set(filter(None, args.skip.split(",")))
     if skip - {"wire", "cost"} or not (1 <= args.lines <= 16 and 1 <= args.per_line
                                        and args.lines * args.per_line <= 247) \
@@ -306,6 +325,10 @@ def main() -> int:
                 res[("alone", mode)] = alone_cost(v, tmp, args, period)
         res["load1"] = os.getloadavg()
         res["end"] = time.strftime("%H:%M", time.gmtime())
+        res["rev"] = revision()
+        if args.save:
+            with open(args.save, "wb") as fh:
+                pickle.dump((res, args), fh)
         report(res, devs, args)
     finally:
         tempfile.tempdir = None
@@ -323,13 +346,17 @@ def num(x: float) -> str:
     return f"{x:,.0f}".replace(",", " ")
 
 
-def report(res, devs, args) -> None:
+def revision() -> str:
     rev = subprocess.run(["git", "-C", ROOT, "rev-parse", "--short", "HEAD"], capture_output=True,
                          text=True).stdout.strip()
     dirty = subprocess.run(["git", "-C", ROOT, "diff", "--quiet", "HEAD", "--", "st_src", "c_shims",
                             "tools/runner"]).returncode != 0
+    return rev + (" + changes" if dirty else "")
+
+
+def report(res, devs, args) -> None:
     print(f"# Plant: {args.lines} lines x {args.per_line} devices at {args.baud} 8N2, task {args.task_ms} ms, "
-          f"working tree at {rev}{' + changes' if dirty else ''}; {res['start']} to {res['end']} UTC; "
+          f"working tree at {res['rev']}; {res['start']} to {res['end']} UTC; "
           f"load average {' '.join(f'{x:.2f}' for x in res['load0'])} at the start, "
           f"{' '.join(f'{x:.2f}' for x in res['load1'])} at the end; {os.cpu_count()} CPUs\n")
     kinds = {s: b for b, _, s in KINDS}
@@ -339,7 +366,7 @@ def report(res, devs, args) -> None:
         print(f"## Wire run: Period T#0s, window {w['wall']:.1f} s wall = {w['scans']} scans "
               f"({win:.1f} s of task time) after {args.warmup:g} s; wire load average at the end "
               f"{' '.join(f'{x:.2f}' for x in w['load'])}\n")
-        print("| line | devices MV-D94 / FDC / MT-S9 | share of the wire | tx/s | < t3.5 | gap ms median | "
+        print("| line | devices MV-D94 / FDC / MT-S9 | share of the wire | tx/s | < t3.5 | gap ms min / median / mean / p99 / max | "
               "refreshes/s (line) | per device min / median / max | worst device vs fair share | "
               "never refreshed | worker CPU % (stat) | worker CPU % (schedstat) |")
         print("|---" * 12 + "|")
@@ -351,9 +378,10 @@ def report(res, devs, args) -> None:
             dev = max(abs(x / fair - 1) for x in c) if fair else float("inf")
             worst_all = max(worst_all, dev)
             mix = [sum(1 for n in idx if devs[n][1] == k) for k in range(len(KINDS))]
-            f = w["lines"][L]
+            f, g = w["lines"][L], w["gaps"][L]
             print(f"| {L} | {' / '.join(map(str, mix))} | **{f['share']:.3f}** | {f['tx']:.1f} | {f['short']:.0%} | "
-                  f"{f['gap_ms']:.2f} | {sum(c) / win:.2f} | {min(c) / win:.3f} / {statistics.median(c) / win:.3f} / "
+                  f"{g['min_ms']:.2f} / {f['gap_ms']:.2f} / {g['mean_ms']:.2f} / {g['p99_ms']:.1f} / {g['max_ms']:.1f} | "
+                  f"{sum(c) / win:.2f} | {min(c) / win:.3f} / {statistics.median(c) / win:.3f} / "
                   f"{max(c) / win:.3f} | **±{dev:.1%}** | {sum(1 for x in c if x == 0)} | "
                   f"{100 * w['cpu_stat'][L]:.2f} | {100 * w['cpu_ns'][L]:.2f} |")
         print(f"\nScan thread CPU (schedstat): {100 * w['scan_cpu_ns']:.1f} % of a core. Worst device of the "
@@ -397,28 +425,30 @@ def report(res, devs, args) -> None:
               f"{num(max(q['prog'] for q in quiet) if quiet else 0)} Ir.")
         scans = res[("plant", "back to back")]
         ab = res[("alone", "back to back")]
-        # a block alone with Period T#0s: its scans that took a refresh, and those that did not
-        pick = {s: (ab[s]["body_pub"] if ab[s]["body_pub"] is not None else ab[s]["body"]) for s in kinds}
-        other = {s: ((ab[s]["body"] - ab[s]["pub"] * pick[s]) / (1 - ab[s]["pub"]) if ab[s]["pub"] < 1
-                     else alone[s]["body"]) for s in kinds}
-        ratios, meas, pred = [], [], []
-        for q in scans:
-            p = sum(n_of[s] * other[s] + q["pub"][s] * (pick[s] - other[s]) for s in kinds)
-            m = sum(q["ir"].values())
-            meas.append(m)
-            pred.append(p)
-            ratios.append(m / p)
-        pubs = {s: statistics.mean(q["pub"][s] for q in scans) for s in kinds}
-        per_scan = ", ".join(f"{s} {pubs[s]:.2f}" for s in kinds)
-        alone_pick = ", ".join(f"{s} {num(pick[s])} Ir ({ab[s]['pub']:.0%} of its scans), other scans {num(other[s])}"
-                               for s in kinds)
-        print(f"\nRefreshes back to back (Period T#0s): {len(scans)} scans, refreshes per scan {per_scan}; "
-              f"blocks alone, their pick-up scans: {alone_pick}.")
-        print(f"All blocks per scan: measured mean {num(statistics.mean(meas))}, predicted from the blocks alone "
-              f"{num(statistics.mean(pred))}; measured / predicted per scan: median {statistics.median(ratios):.3f}, "
-              f"min {min(ratios):.3f}, max {max(ratios):.3f}; whole program mean "
-              f"{num(statistics.mean(q['prog'] for q in scans))}.")
-
+        print(f"\nRefreshes back to back (Period T#0s): {len(scans)} scans; a block's cost per call in the "
+              f"program against two predictions from the same block alone with Period T#0s (A: steady + the "
+              f"refreshes x the alone mean's extra per refresh; B: the alone scans without a refresh + the "
+              f"refreshes x (a pick-up scan - those))\n")
+        print("| block | refreshes per block per scan | in the program, Ir per call | alone: mean per scan | "
+              "pick-up scans | Ir in them | in the others | prediction A | prediction B |")
+        print("|---|---|---|---|---|---|---|---|---|")
+        tot = {"m": 0.0, "a": 0.0, "b": 0.0}
+        for s, b in kinds.items():
+            r = ab[s]
+            pick = r["body_pub"] if r["body_pub"] is not None else r["body"]
+            other = (r["body"] - r["pub"] * pick) / (1 - r["pub"]) if r["pub"] < 1 else alone[s]["body"]
+            per = statistics.mean(q["pub"][s] for q in scans) / n_of[s]          # refreshes per block per scan
+            m = statistics.mean(q["ir"][s] for q in scans) / n_of[s]
+            a = alone[s]["body"] + per * ((r["body"] - alone[s]["body"]) / r["pub"] if r["pub"] else 0.0)
+            bb = other + per * (pick - other)
+            for k, x in (("m", m), ("a", a), ("b", bb)):
+                tot[k] += n_of[s] * x
+            print(f"| `{b}` | {per:.4f} | {num(m)} | {num(r['body'])} | {r['pub']:.0%} | {num(pick)} | {num(other)} | "
+                  f"{num(a)} | {num(bb)} |")
+        print(f"| all blocks, per scan | | {num(tot['m'])} | | | | | {num(tot['a'])} ({tot['m'] / tot['a']:.3f}) | "
+              f"{num(tot['b'])} ({tot['m'] / tot['b']:.3f}) |")
+        print(f"\nWhole program (`MAIN_body__`) per scan: mean {num(statistics.mean(q['prog'] for q in scans))}, "
+              f"max {num(max(q['prog'] for q in scans))}.")
 
 if __name__ == "__main__":
     sys.exit(main())
