@@ -167,12 +167,15 @@ def per_device_wire(line: wp.Line, t0: float, t1: float) -> dict[int, tuple[int,
 
 
 def line_gaps(line: wp.Line, t0: float, t1: float) -> dict:
-    """Silence before each request in [t0, t1) (us): mean, p99, max; the shims' least silence."""
+    """Silence before each request in [t0, t1): ms min, mean, p99, max; requests with no reply next, after < t3.5."""
     fr = line.frames()
     gaps = [t - (fr[i - 1][0] + fr[i - 1][2] * line.char_us)
             for i, (t, d, _, _) in enumerate(fr) if i and d == "M>S" and t0 <= t < t1]
     gaps.sort()
-    return {"mean_ms": statistics.mean(gaps) / 1000, "p99_ms": gaps[int(0.99 * (len(gaps) - 1))] / 1000,
+    ask = [i for i, (t, d, _, _) in enumerate(fr) if d == "M>S" and t0 <= t < t1]
+    unanswered = sum(1 for i in ask if i + 1 >= len(fr) or fr[i + 1][1] != "S>M")
+    short = sum(1 for g in gaps if g < line.t35_us)
+    return {"unanswered": unanswered, "short": short, "requests": len(ask), "mean_ms": statistics.mean(gaps) / 1000, "p99_ms": gaps[int(0.99 * (len(gaps) - 1))] / 1000,
             "max_ms": gaps[-1] / 1000, "min_ms": gaps[0] / 1000} if gaps else {}
 
 
@@ -264,7 +267,7 @@ def alone_cost(v: wp.Variant, tmp: str, args, period: str) -> dict:
         port = os.path.join(tmp, f"alone-{short}-{period.replace('#', '')}")
         exe = v.compile(f"alone-{short}-{period.replace('#', '')}",
                         wp.device_program(block, port, args.baud, "8N2", period))
-        wp.log(f"{block} alone, Period {period}: {args.skip_scans} + {args.scans} scans under callgrind ...")
+        wp.log(f"{block} alone, Period {period}: {args.alone_skip_scans} + {args.scans} scans under callgrind ...")
         ns = types.SimpleNamespace(skip_scans=args.alone_skip_scans, scans=args.scans, task_ms=args.task_ms,
                                    pace=True)
         out[short] = sc.measure(v, exe, block, f"{dev}:1", args.baud, "8N2", port, tmp, ns)
@@ -366,7 +369,7 @@ def report(res, devs, args) -> None:
         print(f"## Wire run: Period T#0s, window {w['wall']:.1f} s wall = {w['scans']} scans "
               f"({win:.1f} s of task time) after {args.warmup:g} s; wire load average at the end "
               f"{' '.join(f'{x:.2f}' for x in w['load'])}\n")
-        print("| line | devices MV-D94 / FDC / MT-S9 | share of the wire | tx/s | < t3.5 | gap ms min / median / mean / p99 / max | "
+        print("| line | devices MV-D94 / FDC / MT-S9 | share of the wire | tx/s | requests < t3.5 / unanswered | gap ms min / median / mean / p99 / max | "
               "refreshes/s (line) | per device min / median / max | worst device vs fair share | "
               "never refreshed | worker CPU % (stat) | worker CPU % (schedstat) |")
         print("|---" * 12 + "|")
@@ -379,7 +382,7 @@ def report(res, devs, args) -> None:
             worst_all = max(worst_all, dev)
             mix = [sum(1 for n in idx if devs[n][1] == k) for k in range(len(KINDS))]
             f, g = w["lines"][L], w["gaps"][L]
-            print(f"| {L} | {' / '.join(map(str, mix))} | **{f['share']:.3f}** | {f['tx']:.1f} | {f['short']:.0%} | "
+            print(f"| {L} | {' / '.join(map(str, mix))} | **{f['share']:.3f}** | {f['tx']:.1f} | {g['short']} / {g['unanswered']} of {g['requests']} | "
                   f"{g['min_ms']:.2f} / {f['gap_ms']:.2f} / {g['mean_ms']:.2f} / {g['p99_ms']:.1f} / {g['max_ms']:.1f} | "
                   f"{sum(c) / win:.2f} | {min(c) / win:.3f} / {statistics.median(c) / win:.3f} / "
                   f"{max(c) / win:.3f} | **±{dev:.1%}** | {sum(1 for x in c if x == 0)} | "
