@@ -191,6 +191,12 @@ def wire_run(exe: str, ptyline: str, tmp: str, devs, args) -> dict:
         figs = [x.figures(a, b) for x, a, b in zip(lines, t0, t1)]
         wire = [per_device_wire(x, a, b) for x, a, b in zip(lines, t0, t1)]
         gaps = [line_gaps(x, a, b) for x, a, b in zip(lines, t0, t1)]
+        if args.keep:
+            os.makedirs(args.keep, exist_ok=True)
+            for L, x in enumerate(lines):
+                with open(os.path.join(args.keep, f"line{L}.frames"), "w", encoding="utf-8") as fh:
+                    fh.write(f"# window {t0[L]:.0f} .. {t1[L]:.0f} us (line time)\n")
+                    fh.write(open(x.logf, encoding="utf-8").read())
     finally:
         for x in lines:
             x.close()
@@ -288,6 +294,7 @@ def main() -> int:
     ap.add_argument("--skip-scans", type=int, default=250, help="the plant's first scans left out")
     ap.add_argument("--alone-skip-scans", type=int, default=50, help="a block alone: first scans left out")
     ap.add_argument("--skip", default="", help="comma list of: wire,cost")
+    ap.add_argument("--keep", metavar="DIR", help="keep the wire run's frame logs (ptyline's, per line) in DIR")
     ap.add_argument("--save", metavar="FILE", help="also keep the raw results (pickle) in FILE")
     ap.add_argument("--from", dest="saved", metavar="FILE", help="only the report again, from a --save FILE")
     args = ap.parse_args()
@@ -436,12 +443,15 @@ def report(res, devs, args) -> None:
               "pick-up scans | Ir in them | in the others | prediction A | prediction B |")
         print("|---|---|---|---|---|---|---|---|---|")
         tot = {"m": 0.0, "a": 0.0, "b": 0.0}
+        waits = []
         for s, b in kinds.items():
             r = ab[s]
             pick = r["body_pub"] if r["body_pub"] is not None else r["body"]
             other = (r["body"] - r["pub"] * pick) / (1 - r["pub"]) if r["pub"] < 1 else alone[s]["body"]
             per = statistics.mean(q["pub"][s] for q in scans) / n_of[s]          # refreshes per block per scan
             m = statistics.mean(q["ir"][s] for q in scans) / n_of[s]
+            idle = [q["ir"][s] / n_of[s] for q in scans if not q["pub"][s]]
+            waits.append(f"{s} {num(statistics.mean(idle)) if idle else '-'} ({len(idle)} scans)")
             a = alone[s]["body"] + per * ((r["body"] - alone[s]["body"]) / r["pub"] if r["pub"] else 0.0)
             bb = other + per * (pick - other)
             for k, x in (("m", m), ("a", a), ("b", bb)):
@@ -450,7 +460,8 @@ def report(res, devs, args) -> None:
                   f"{num(a)} | {num(bb)} |")
         print(f"| all blocks, per scan | | {num(tot['m'])} | | | | | {num(tot['a'])} ({tot['m'] / tot['a']:.3f}) | "
               f"{num(tot['b'])} ({tot['m'] / tot['b']:.3f}) |")
-        print(f"\nWhole program (`MAIN_body__`) per scan: mean {num(statistics.mean(q['prog'] for q in scans))}, "
+        print(f"\nIn the program's scans in which no block of that kind refreshed, Ir per call: {', '.join(waits)}.")
+        print(f"Whole program (`MAIN_body__`) per scan: mean {num(statistics.mean(q['prog'] for q in scans))}, "
               f"max {num(max(q['prog'] for q in scans))}.")
 
 if __name__ == "__main__":
