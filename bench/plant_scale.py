@@ -19,7 +19,10 @@ baud rate, 1..10 ms device turnaround, seeded), as in bench/wire_pace.py.
 The wire run (Period T#0s: every block refreshes back to back), in a window of --seconds after
 --warmup:
 * share of each line's wire: bench/wire_pace.py's Line.figures from ptyline's frame log,
-  sum over the requests of (t3.5 + request + measured turnaround + reply) / window;
+  sum over the requests of (t3.5 + request + measured turnaround + reply) / window (log
+  entries of one direction back to back on the wire joined into one frame: PlantLine); the
+  silence before each request; requests after less than t3.5, requests with no reply next,
+  and log entries ptyline marks as collided;
 * refreshes per device from the runner's snapshot (the %QW counters at the window's ends),
   against the fair share: the line's refreshes / its devices (every block asks for the same
   Period, so the worker owes each the same number of refreshes); also each device's requests
@@ -119,11 +122,32 @@ def compile_runner(v: wp.Variant, key: str, program: str) -> str:
     return exe
 
 
+class PlantLine(wp.Line):
+    """wire_pace's Line, whose frames() joins entries of one direction that are back to back on
+    the wire (less than 1.5 characters apart): ptyline, delayed under load, may log one frame
+    in pieces (a request as 8 one-byte entries), which a receiver hears as one frame."""
+
+    def frames(self) -> list[tuple[float, str, int, int]]:
+        out: list[tuple[float, str, int, int]] = []
+        for t, d, nb, a in super().frames():
+            if out and out[-1][1] == d and t - (out[-1][0] + out[-1][2] * self.char_us) < 1.5 * self.char_us:
+                out[-1] = (out[-1][0], d, out[-1][2] + nb, out[-1][3])
+            else:
+                out.append((t, d, nb, a))
+        return out
+
+    def collisions(self, t0: float, t1: float) -> int:
+        """Log entries in [t0, t1) that ptyline marks as collided ('M>S*', 'S>M*')."""
+        with open(self.logf, encoding="utf-8") as fh:
+            return sum(1 for ln in fh if len(p := ln.split()) >= 2 and p[1].endswith("*")
+                       and t0 <= float(p[0]) < t1)
+
+
 def open_lines(ptyline: str, tmp: str, devs, nlines: int, baud: int) -> list:
     lines = []
     try:
         for L in range(nlines):
-            lines.append(wp.Line(ptyline, tmp, f"line{L}", baud, "8N2",
+            lines.append(PlantLine(ptyline, tmp, f"line{L}", baud, "8N2",
                                  [f"{KINDS[k][1]}:{s}" for l2, k, s in devs if l2 == L]))
     except BaseException:
         for line in lines:
@@ -150,7 +174,7 @@ def thread_cpu(pid: int) -> dict[int, tuple[int, int]]:
     return out
 
 
-def per_device_wire(line: wp.Line, t0: float, t1: float) -> dict[int, tuple[int, float]]:
+def per_device_wire(line: PlantLine, t0: float, t1: float) -> dict[int, tuple[int, float]]:
     """{slave: (requests, bus us)} in [t0, t1): Line.figures' cost of a transaction, per address."""
     fr = line.frames()
     out: dict[int, list] = {}
@@ -166,7 +190,7 @@ def per_device_wire(line: wp.Line, t0: float, t1: float) -> dict[int, tuple[int,
     return {a: (n, us) for a, (n, us) in out.items()}
 
 
-def line_gaps(line: wp.Line, t0: float, t1: float) -> dict:
+def line_gaps(line: PlantLine, t0: float, t1: float) -> dict:
     """Silence before each request in [t0, t1): ms min, mean, p99, max; requests with no reply next, after < t3.5."""
     fr = line.frames()
     gaps = [t - (fr[i - 1][0] + fr[i - 1][2] * line.char_us)
@@ -190,7 +214,7 @@ def wire_run(exe: str, ptyline: str, tmp: str, devs, args) -> dict:
             s1, t1, c1, w1 = plc.snapshot(), [x.now_us() for x in lines], thread_cpu(pid), time.monotonic()
         figs = [x.figures(a, b) for x, a, b in zip(lines, t0, t1)]
         wire = [per_device_wire(x, a, b) for x, a, b in zip(lines, t0, t1)]
-        gaps = [line_gaps(x, a, b) for x, a, b in zip(lines, t0, t1)]
+        gaps = [dict(line_gaps(x, a, b), collisions=x.collisions(a, b)) for x, a, b in zip(lines, t0, t1)]
         if args.keep:
             os.makedirs(args.keep, exist_ok=True)
             for L, x in enumerate(lines):
@@ -376,7 +400,7 @@ def report(res, devs, args) -> None:
         print(f"## Wire run: Period T#0s, window {w['wall']:.1f} s wall = {w['scans']} scans "
               f"({win:.1f} s of task time) after {args.warmup:g} s; wire load average at the end "
               f"{' '.join(f'{x:.2f}' for x in w['load'])}\n")
-        print("| line | devices MV-D94 / FDC / MT-S9 | share of the wire | tx/s | requests < t3.5 / unanswered | gap ms min / median / mean / p99 / max | "
+        print("| line | devices MV-D94 / FDC / MT-S9 | share of the wire | tx/s | requests < t3.5 / unanswered / collided entries | gap ms min / median / mean / p99 / max | "
               "refreshes/s (line) | per device min / median / max | worst device vs fair share | "
               "never refreshed | worker CPU % (stat) | worker CPU % (schedstat) |")
         print("|---" * 12 + "|")
@@ -389,7 +413,7 @@ def report(res, devs, args) -> None:
             worst_all = max(worst_all, dev)
             mix = [sum(1 for n in idx if devs[n][1] == k) for k in range(len(KINDS))]
             f, g = w["lines"][L], w["gaps"][L]
-            print(f"| {L} | {' / '.join(map(str, mix))} | **{f['share']:.3f}** | {f['tx']:.1f} | {g['short']} / {g['unanswered']} of {g['requests']} | "
+            print(f"| {L} | {' / '.join(map(str, mix))} | **{f['share']:.3f}** | {f['tx']:.1f} | {g['short']} / {g['unanswered']} of {g['requests']} / {g['collisions']} | "
                   f"{g['min_ms']:.2f} / {f['gap_ms']:.2f} / {g['mean_ms']:.2f} / {g['p99_ms']:.1f} / {g['max_ms']:.1f} | "
                   f"{sum(c) / win:.2f} | {min(c) / win:.3f} / {statistics.median(c) / win:.3f} / "
                   f"{max(c) / win:.3f} | **±{dev:.1%}** | {sum(1 for x in c if x == 0)} | "
