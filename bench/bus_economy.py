@@ -58,7 +58,8 @@ def st_sources(before: str | None, into: str) -> list[str]:
 def build(build_dir: str, work: str, sources: list[str], program: str) -> str:
     """iec2c + g++ as tests/fb/CMakeLists.txt does; returns the executable."""
     build_dir = os.path.abspath(build_dir)
-    home = cache_value(build_dir, "OPENPLC_HOME")
+    home = (cache_value(build_dir, "OPENPLC_HOME") or os.environ.get("OPENPLC_HOME")
+            or "/opt/OpenPLC_v3")    # OpenPLC's documented default
     iec2c = cache_value(build_dir, "MBFB_IEC2C") or os.path.join(home, "webserver", "iec2c")
     lm = cache_value(build_dir, "MBFB_LM_OPENPLC_LIB") or cache_value(build_dir, "MBFB_LM_DEBIAN_LIB")
     text = "".join(open(f, encoding="utf-8").read() + "\n"
@@ -74,6 +75,7 @@ def build(build_dir: str, work: str, sources: list[str], program: str) -> str:
     exe = os.path.join(work, "bench")
     subprocess.run(["g++", "-std=gnu++11", "-O2", "-w", "-I", os.path.join(home, "webserver", "core", "lib"),
                     "-I", os.path.join(ROOT, "tests", "fb"), "-I", os.path.join(ROOT, "c_shims", "include"),
+                    "-I", os.path.join(ROOT, "tools", "runner"),
                     "-I", work, "-include", "mbfb.h", "-include", "fbtest.h", "-o", exe,
                     "Config0.c", "Res0.c", "glue.c",
                     os.path.join(build_dir, "tests", "fb", "libmbfb_test_host.a"),

@@ -107,6 +107,8 @@ extern "C" {
                                      0..60000 ms, Retries above 20, a direction delay above
                                      100 ms, GPIO without its chip or line)             */
 #define MBFB_E_NOT_ENABLED   208 /* command on a device block whose Enable is FALSE     */
+#define MBFB_E_NOT_HELD      209 /* a settings download's read-back shows another word
+                                     than the one written (MB_Sequence)                 */
 
 /* ---- RS-485 direction control (README "Direction control") ------------------
  * A half-duplex transceiver (MAX485 and the like) must drive the line while the master

@@ -54,10 +54,11 @@ const char *mbfb_strerror(int code)
         "invalid register request (function, count or address)",
         "invalid line settings (data bits, stop bits, baud or timeout)",
         "block not enabled",
+        "setting not held: its read-back shows another value than written",
     };
-    if (code >= MBFB_E_BAD_SLAVE && code <= MBFB_E_NOT_ENABLED)
+    if (code >= MBFB_E_BAD_SLAVE && code <= MBFB_E_NOT_HELD)
         return input[code - MBFB_E_BAD_SLAVE];
-    if (code > MBFB_E_NOT_ENABLED && code <= 255)
+    if (code > MBFB_E_NOT_HELD && code <= 255)
         return "function block input error (see the block's documentation)";
     return "unknown error";
 }

@@ -41,6 +41,11 @@ PORT = 5502
 # differs from the simulator's start (120 / 100), so a change shows at once.
 OPERATOR = [(130, 110), (180, 150), (150, 90)]
 OPERATOR_PERIOD = 40
+# The product the operator asks for (%MW2: 1 = A, 2 = B): B first, PRODUCT_FIRST s after both
+# zones are valid, then A and B in turn every PRODUCT_PERIOD s.
+PRODUCT_FIRST, PRODUCT_PERIOD = 20, 60
+PRODUCT_NAME = {0: "-", 1: "A", 2: "B"}
+DOWNLOADING = 0xFFFF
 BUS_PORT_VAR = "CONFIG0.RES0.HEATTREAT.BUSPORT"  # the example's BusPort (its CONFIGURATION)
 TREND_SECONDS = 180     # the trend shows the last 3 minutes
 TREND_WIDTH, TREND_HEIGHT = 60, 8
@@ -147,7 +152,15 @@ def screen(hr, coils, sim, t0, title, where, trend, note):
     for zone, st in ((1, hr[9]), (2, hr[10])):
         codes.add(st)
         sp.append(f"zone {zone} " + (code_name(st) if st else "ok"))
+    rs = []
+    for zone, st, field in ((1, hr[12], hr[14]), (2, hr[13], hr[15])):
+        if st == DOWNLOADING:
+            rs.append(f"zone {zone} downloading")
+        else:
+            codes.add(st)
+            rs.append(f"zone {zone} " + ("held" if not st else f"{code_name(st)} (field {s16(field)})"))
     out += [f"set point requests: {'   '.join(sp)}",
+            f"product: {PRODUCT_NAME.get(hr[11], hr[11]) if hr[11] else 'changing'}   recipes: {'   '.join(rs)}",
             f"any alarm: {'YES' if coils[8] else 'no'}    PLC scans: {hr[8]}", ""]
     out += trend.draw(time.monotonic())
     out += ["", "simulator (the instruments themselves):"] + ["  " + line for line in sim]
@@ -274,10 +287,11 @@ def show(client, sim, title, where, seconds):
     """The live screen every 0.5 s, playing the operator, until Ctrl-C or seconds."""
     t0 = time.monotonic()
     t_op, step, note = None, -1, "operator: waiting for both zones to be valid"
+    product = 0
     trend = Trend()
     while not seconds or time.monotonic() - t0 < seconds:
         try:
-            hr, coils = client.hr(0, 11), client.coils(9)
+            hr, coils = client.hr(0, 16), client.coils(9)
         except Exception as e:  # a PLC that stops answering is shown, not a traceback
             sys.stdout.write(f"\033[H\033[2J{title}: no answer ({e}); retrying\n")
             sys.stdout.flush()
@@ -297,6 +311,13 @@ def show(client, sim, title, where, seconds):
             client.write(1025, sp[1] * 10)
             note = (f"operator: set points {sp[0]} / {sp[1]} °C written to %MW0/%MW1 (Modbus HR "
                     f"1024/1025) at {time.monotonic() - t0:.0f} s; next in {OPERATOR_PERIOD} s")
+        # Play the product change: B, then A and B in turn (%MW2: holding register 1026); each
+        # zone's recipe is downloaded (WriteSettings) and the screen shows how it went.
+        if t_op is not None and time.monotonic() - t_op >= PRODUCT_FIRST:
+            want = 2 if int((time.monotonic() - t_op - PRODUCT_FIRST) // PRODUCT_PERIOD) % 2 == 0 else 1
+            if want != product:
+                product = want
+                client.write(1026, product)
         screen(hr, coils, sim_lines(sim), t0, title, where, trend, note)
         time.sleep(0.5)
 

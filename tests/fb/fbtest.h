@@ -24,9 +24,10 @@ int fbt_getenv(const char *name, uint8_t *buf, int max);
  *  Copies up to max bytes of the reply into buf and returns its full length, or -1. Also
  *  gives: ok (reply has "ok": true), raw (value of "raw" if present, else -1), frames
  *  (number of frames in a "log" reply) and matches (occurrences of `match` in the reply,
- *  e.g. '"hex": "01 06' counts FC06 frames to slave 1 in a log). */
+ *  e.g. '"hex": "01 06' counts FC06 frames to slave 1 in a log) and at (where the first
+ *  match is in the reply, -1 = none: the order of two frames in a log). */
 int fbt_sim(const uint8_t *req, int len, uint8_t *buf, int max, int *ok, long *raw, long *frames,
-            const uint8_t *match, int match_len, long *matches);
+            const uint8_t *match, int match_len, long *matches, long *at);
 
 /* The host's side (a test host's scan loop; the programs do not call these). */
 /** The scan limit of a test run: MBFB_MAX_SCANS, default 6000. */

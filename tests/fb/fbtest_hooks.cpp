@@ -50,8 +50,8 @@ static long json_long(const std::string &s, const char *key) {
 }
 
 int fbt_sim(const uint8_t *req, int len, uint8_t *buf, int max, int *ok, long *raw, long *frames,
-            const uint8_t *match, int match_len, long *matches) {
-    *ok = 0; *raw = -1; *frames = -1; *matches = 0;
+            const uint8_t *match, int match_len, long *matches, long *at) {
+    *ok = 0; *raw = -1; *frames = -1; *matches = 0; *at = -1;
     if (g_sim_fd < 0) {
         const char *path = getenv("MBFB_SIM_CONTROL");
         if (!path) return -1;
@@ -87,6 +87,8 @@ int fbt_sim(const uint8_t *req, int len, uint8_t *buf, int max, int *ok, long *r
     *frames = reply.find("\"frames\"") != std::string::npos ? count : -1;
     if (match_len > 0) {
         std::string m((const char *)match, (size_t)match_len);
+        size_t first = reply.find(m);
+        *at = first == std::string::npos ? -1 : (long)first;
         for (size_t p = reply.find(m); p != std::string::npos; p = reply.find(m, p + 1))
             (*matches)++;
     }

@@ -17,6 +17,8 @@ gone and its temp files removed. Checked on the screen:
 - the operator's set point requests (130 / 110, written to %MW0/%MW1 through the runner's
   control socket) reach the simulated instruments: the simulator's SP1/SV change from their
   start values 120 / 100, and the PLC reads the new SVs back;
+- the operator's product change (B, %MW2) is downloaded to both zones (WriteSettings): the
+  screen shows both recipes held and the simulator has product B's set points (165 / 145);
 - the units, the status words and the trend are on the screen.
 Exit 0 pass, 1 fail, 77 skipped with the reason (no matiec, a MATIEC_HOME without iec2c, no
 local matiec source; 1 with MBFB_REQUIRE_TOOLCHAIN=1).
@@ -41,6 +43,7 @@ PARTS = re.compile(r"^Parts .*count\s+(\d+)\s+(ok|no data)", re.M)
 SIM = re.compile(r"FDC-100 PV (-?[\d.]+) SP1 (-?[\d.]+)\s+MV-D94 PV (-?[\d.]+) SV (-?[\d.]+)"
                  r"\s+MT-S9 count (\d+)")
 SCANS = re.compile(r"PLC scans: (\d+)")
+PRODUCT = re.compile(r"^product: (\S+)\s+recipes: zone 1 (.+?)\s{3}zone 2 (.+?)\s*$", re.M)
 WINDOW = 3          # screens back in which the PLC's value must have been the simulator's
 PV_TOL = 1.0        # degrees
 MIN_SCREENS = 20    # screens with every device valid, at least
@@ -108,9 +111,11 @@ def frames(text):
     for f in text.split(CLEAR)[1:-1]:  # the last one may still be being written
         zones = {int(z): (float(pv), float(sv), st == "ok") for z, pv, sv, st in ZONE.findall(f)}
         parts, sim, scans = PARTS.search(f), SIM.search(f), SCANS.search(f)
+        product = PRODUCT.search(f)
         if len(zones) == 2 and parts and sim and scans:
             out.append({"zones": zones, "count": int(parts.group(1)), "parts_ok": parts.group(2) == "ok",
-                        "sim": [float(x) for x in sim.groups()], "scans": int(scans.group(1))})
+                        "sim": [float(x) for x in sim.groups()], "scans": int(scans.group(1)),
+                        "product": product.groups() if product else None})
     return out
 
 
@@ -126,6 +131,11 @@ def seen(fs):
         "PLC reads the new SVs back": any(f["zones"][1][1] == 130.0 and f["zones"][2][1] == 110.0
                                           for f in valid),
         "part count increased": len(valid) >= 2 and valid[-1]["count"] > valid[0]["count"],
+        # the operator's product B (%MW2): both zones' recipes held, the simulator at B's set
+        # points (SP1 165 / SV 145: the example's product B)
+        "product B held on both zones": any(f["product"] == ("B", "held", "held") for f in fs),
+        "product B's set points on the instruments": any(f["sim"][1] == 165.0 and f["sim"][3] == 145.0
+                                                         for f in fs),
     }
 
 

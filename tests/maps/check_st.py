@@ -6,7 +6,9 @@
 
 Every `VAR CONSTANT` / `VAR_GLOBAL CONSTANT` entry whose name starts with MVD_, MTS_ or FDC_
 must equal what its device's map says: a number, or an array <P>_<TABLE>_BY_CODE whose
-elements are the table's (numeric) labels by code. Exit 0 when all agree; 1 on any difference, on a
+elements are the table's (numeric) labels by code. So must every field of a structure type
+named <P>_REGISTERS (TYPE ... STRUCT): field X is the address of register X (checked as the
+constant <P>_REG_X; INPUT_TYPE names TYPE, an ST keyword). Exit 0 when all agree; 1 on any difference, on a
 prefixed constant the rule does not know, or when no prefixed constant is found at all (so the
 check cannot pass empty); 2 on bad arguments or an unreadable map.
 """
@@ -33,6 +35,9 @@ ARRAY = re.compile(r"([A-Za-z_][A-Za-z0-9_]*)\s*:\s*ARRAY\s*\[\s*([^\].]+?)\s*\.
 BY_CODE = "_BY_CODE"     # <P>_<TABLE>_BY_CODE: an array, element [code] = the code's label
 CODE_ALIAS = "CODE_"     # <P>_<TABLE>_CODE_<LABEL>: <P>_<TABLE>_<LABEL> when an enum value has that name
 FC_MAX = re.compile(r"FC0?(\d+)_MAX_WORDS$")
+TYPE_BLOCK = re.compile(r"\bTYPE\b(.*?)\bEND_TYPE\b", re.S)
+REGISTERS = re.compile(r"\b([A-Za-z]+)_REGISTERS\s*:\s*STRUCT\b(.*?)\bEND_STRUCT\b", re.S | re.I)
+FIELD_ALIASES = {"INPUT_TYPE": "TYPE"}   # a register named by an ST keyword
 
 
 def st_int(text: str) -> int:
@@ -65,6 +70,12 @@ def constants(paths):
                 line = clean.count("\n", 0, block.start(1) + a.start()) + 1
                 out.append((path, line, a.group(1),
                             (a.group(2), a.group(3), [x.strip() for x in a.group(4).split(",")])))
+        for tb in TYPE_BLOCK.finditer(clean):
+            for st in REGISTERS.finditer(tb.group(1)):
+                for e in ENTRY.finditer(st.group(2)):
+                    line = clean.count("\n", 0, tb.start(1) + st.start(2) + e.start()) + 1
+                    field = FIELD_ALIASES.get(e.group(1).upper(), e.group(1))
+                    out.append((path, line, f"{st.group(1)}_REG_{field}", e.group(3).strip()))
     return out
 
 

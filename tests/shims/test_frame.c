@@ -207,7 +207,7 @@ static void test_strerror(void)
     CHECK(strstr(mbfb_strerror(-130), "illegal data address") != NULL);
     CHECK(strstr(mbfb_strerror(210), "input") != NULL);
     /* the block input errors each have their own text */
-    for (int i = MBFB_E_BAD_SLAVE; i <= MBFB_E_NOT_ENABLED; i++)
+    for (int i = MBFB_E_BAD_SLAVE; i <= MBFB_E_NOT_HELD; i++)
         CHECK(i == MBFB_E_BAD_SLAVE || strcmp(mbfb_strerror(i), mbfb_strerror(i - 1)) != 0);
     CHECK(strstr(mbfb_strerror(MBFB_E_BAD_SLAVE), "247") != NULL);
     CHECK(strstr(mbfb_strerror(-MBFB_E_RANGE), "range") != NULL);

@@ -1,0 +1,116 @@
+"""A recipe download's cost on a paced line, beside another block's refresh, in one run.
+
+    .venv/bin/python bench/recipe_pace.py [--build build] [-k 6] [--period-ms 200]
+
+Not a test: it prints figures (bench/README.md, "Recipe downloads"). It compiles
+bench/recipe_pace.st with the working tree's st_src (as bench/bus_economy.py does: iec2c, g++)
+and runs it against the simulator (an MV-D94 at 1, a VD at 2) on a line paced by ptyline at
+9600 8N2 (1..10 ms device turnaround). Two windows, marked by the program: idle (both blocks
+refreshing) and K downloads back to back of a 10-field recipe into the MV-D94. From the
+simulator's log: the download's requests per recipe (FC06 writes, one-word FC03 read-backs,
+and the MV-D94's refresh reads in between), the wire time they take (gap + bytes + turnaround,
+as bus_economy), how long a download takes, and the VD's refreshes per second in each window.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+sys.path.insert(0, os.path.join(ROOT, "tools", "sim"))
+from simctl import Simulator  # noqa: E402
+from bus_economy import CHAR_S, GAP_S, build, st_sources  # noqa: E402  (bench/ on the path)
+
+FIELDS = 10                      # bench/recipe_pace.st: writes per download (9 fields + LOCK)
+
+
+def run(exe: str, ptyline: str) -> tuple[str, list, dict]:
+    tmp = tempfile.mkdtemp(prefix="bench-recipe-")
+    try:
+        link = os.path.join(tmp, "ttyBENCH")
+        os.environ["MBFB_PTYLINE"] = ptyline
+        with Simulator(["mvd94:1:SV=100.0,DP=1", "vd:2:SV=50.0,DP=1"], fmt="8N2", pace=True,
+                       link=link, seed=1) as sim:
+            env = dict(os.environ, MBFB_TEST_PORT=link, MBFB_SIM_CONTROL=sim.control_path,
+                       MBFB_MAX_SCANS="100000")
+            out = subprocess.run([exe], env=env, capture_output=True, text=True, timeout=900).stdout
+            if "checks passed, 0 failed" not in out:
+                raise SystemExit(f"bench program failed:\n{out[-2000:]}")
+            frames = sim.log()
+            line = sim.ctl("line_stats")
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    if not line.get("available"):
+        raise SystemExit(f"line not paced by ptyline: {line}")
+    if len(frames) >= 4000:
+        raise SystemExit("the simulator's log overflowed (4000 frames): use a smaller -k")
+    return out, frames, line["stats"]
+
+
+def window(out: str, frames: list, name: str, scan_s: float, turn: float) -> dict:
+    m = {w: re.search(rf"note scan (\d+): {name} {w} (\d+) (\d+)", out) for w in ("start", "end")}
+    (s0, f0, r0), (s1, f1, r1) = ((int(x) for x in m[w].groups()) for w in ("start", "end"))
+    secs = (s1 - s0) * scan_s
+    rx = [f["hex"].split() for f in frames[f0:f1] if f["dir"] == "rx" and f["hex"]]
+    tx = {i: f["hex"].split() for i, f in enumerate(frames[f0:f1]) if f["dir"] == "tx" and f["hex"]}
+
+    def bus(reqs):
+        return sum(GAP_S + turn + (len(r) + 8) * CHAR_S for r in reqs)   # + a reply of ~8 bytes
+    mv = [r for r in rx if r[0] == "01"]
+    writes = [r for r in mv if r[1] == "06"]
+    backs = [r for r in mv if r[1] == "03" and r[4:6] == ["00", "01"]]
+    line_bytes = sum(len(r) for r in rx) + sum(len(t) for t in tx.values())
+    return {"secs": secs, "vd_rate": (r1 - r0) / secs, "writes": writes, "backs": backs,
+            "mv_other": len(mv) - len(writes) - len(backs), "bus_dl": bus(writes + backs),
+            "line_util": (len(rx) * (GAP_S + turn) + line_bytes * CHAR_S) / secs}
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--build", default=os.path.join(ROOT, "build"))
+    ap.add_argument("-k", type=int, default=6, help="downloads in the window")
+    ap.add_argument("--period-ms", type=int, default=200)
+    ap.add_argument("--scan-ms", type=int, default=10)
+    args = ap.parse_args()
+    ptyline = os.path.join(args.build, "tools", "sim", "ptyline", "mbfb-ptyline")
+    if not os.path.exists(ptyline):
+        raise SystemExit(f"missing {ptyline}: configure and build --build first")
+    with open(os.path.join(ROOT, "bench", "recipe_pace.st"), encoding="utf-8") as fh:
+        program = (fh.read().replace("@PERIOD@", f"T#{args.period_ms}ms")
+                   .replace("@SCAN_MS@", str(args.scan_ms)).replace("@K@", str(args.k))
+                   .replace("@SCANS@", str(int(3000 / args.scan_ms))))
+    work = tempfile.mkdtemp(prefix="bench-recipe-build-")
+    try:
+        exe = build(args.build, work, st_sources(None, work), program)
+        out, frames, stats = run(exe, ptyline)
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    turn = (stats["reply_latency"]["avg_us"] or 0) / 1e6
+    idle = window(out, frames, "idle", args.scan_ms / 1000, turn)
+    dl = window(out, frames, "dl", args.scan_ms / 1000, turn)
+    k = args.k
+    per = dl["secs"] / k
+    print(f"one line 9600 8N2 (ptyline), reply latency {turn * 1000:.1f} ms, scans of {args.scan_ms} ms, "
+          f"Period {args.period_ms} ms; {k} downloads of a {FIELDS}-field recipe (MV-D94) beside a VD\n")
+    print("| figure | idle | downloads |")
+    print("|---|---|---|")
+    print(f"| FC06 writes per download | | {len(dl['writes']) / k:.2f} (expected {FIELDS}: 9 fields and LOCK, or the lock opened) |")
+    print(f"| one-word read-backs per download | | {len(dl['backs']) / k:.2f} |")
+    print(f"| MV-D94 refresh reads per download | | {dl['mv_other'] / k:.2f} |")
+    print(f"| time per download | | {per * 1000:.0f} ms |")
+    print(f"| wire time of its writes and read-backs | | {dl['bus_dl'] / k * 1000:.0f} ms "
+          f"({dl['bus_dl'] / dl['secs']:.0%} of the download's time) |")
+    print(f"| line in use (all requests and replies) | {idle['line_util']:.0%} | {dl['line_util']:.0%} |")
+    print(f"| VD refreshes per second | {idle['vd_rate']:.2f} | {dl['vd_rate']:.2f} "
+          f"(x{dl['vd_rate'] / idle['vd_rate']:.2f}) |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
