@@ -59,7 +59,8 @@ typedef struct peer_reply {
     int pace_us;              /* > 0: one byte, then this pause (a slow line) */
     int hold;                 /* wait for peer_release() (at most 10 s) before writing */
     int deaf;                 /* busy until this reply is out: requests that came in
-                                 meanwhile are discarded (a half-duplex device)      */
+                                 before it was written are discarded (a half-duplex
+                                 device); what comes after it is heard             */
 } peer_reply_t;
 
 struct peer;
@@ -89,7 +90,8 @@ typedef struct peer {
     int dead[256];            /* peer_answer stays silent for these slaves        */
     int collisions;           /* __atomic: request bytes came in while a paced reply
                                  was still going out (a collision on RS-485)       */
-    int paced_sent;           /* __atomic: bytes of the current paced reply sent   */
+    int reply_sent;           /* __atomic: bytes of the current reply written (a
+                                 paced one byte by byte, another all at once)      */
     int released;             /* __atomic: set by peer_release, taken by a held reply */
     long ignored;             /* __atomic: bytes discarded by a deaf reply           */
     /* babbler: a second talker on the line (noise, another master, a broken unit) */
@@ -127,13 +129,16 @@ int peer_babble_start(peer_t *p, const uint8_t *pattern, int len, int interval_u
 long peer_babble_stop(peer_t *p);
 long peer_babbled(peer_t *p);
 int peer_collisions(peer_t *p);
-int peer_paced_sent(peer_t *p);
+/** Bytes of the reply being written (or last written) so far. */
+int peer_reply_sent(peer_t *p);
+/** Bytes the shims have written that the peer has not read yet (FIONREAD). */
+int peer_pending(peer_t *p);
 /** Let a held reply (peer_reply_t.hold) go out. */
 void peer_release(peer_t *p);
 /** A well-behaved device from the register bank. */
 void peer_answer(peer_t *p, int n, const uint8_t *frame, int flen, peer_reply_t *r);
 /** peer_answer, but request `late_n` is answered `delay_ms` late by a device deaf
- *  meanwhile (busy: what it hears is discarded). */
+ *  meanwhile (busy: what it hears is discarded), the reply written at once. */
 void peer_answer_late_deaf(peer_t *p, int n, const uint8_t *frame, int flen, peer_reply_t *r,
                            int late_n, int delay_ms);
 

@@ -9,6 +9,7 @@
 #include <pty.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/ioctl.h>
 #include <sys/stat.h>
 #include <termios.h>
 #include <time.h>
@@ -222,21 +223,42 @@ static void write_all(peer_t *p, const uint8_t *buf, int len)
         fprintf(stderr, "peer: short write\n");
 }
 
+/* Discard what came in while a deaf reply kept the device busy (peer_reply_t.deaf). */
+static void discard_input(peer_t *p)
+{
+    for (;;) {
+        uint8_t junk[64];
+        struct pollfd pf = {p->master, POLLIN, 0};
+        ssize_t k;
+        if (poll(&pf, 1, 0) <= 0 || (k = read(p->master, junk, sizeof junk)) <= 0)
+            return;
+        __atomic_fetch_add(&p->ignored, (long)k, __ATOMIC_RELAXED);
+    }
+}
+
 /* Send a reply, at once or paced; a request byte waiting before a paced byte goes out
- * means the master talked while this reply was still on the line. */
+ * means the master talked while this reply was still on the line. A deaf reply discards
+ * the input right before each write: the device is busy until its reply is out, and
+ * hears what comes after it (a master's next request, sent on hearing the reply, is
+ * never thrown away, however late this thread runs). */
 static void peer_write(peer_t *p, const peer_reply_t *r)
 {
+    __atomic_store_n(&p->reply_sent, 0, __ATOMIC_RELEASE);
     if (r->pace_us <= 0) {
+        if (r->deaf)
+            discard_input(p);
         write_all(p, r->out, r->len);
+        __atomic_store_n(&p->reply_sent, r->len, __ATOMIC_RELEASE);
         return;
     }
-    __atomic_store_n(&p->paced_sent, 0, __ATOMIC_RELEASE);
     for (int i = 0; i < r->len; i++) {
         struct pollfd pf = {p->master, POLLIN, 0};
-        if (i > 0 && poll(&pf, 1, 0) > 0)
+        if (r->deaf)
+            discard_input(p);
+        else if (i > 0 && poll(&pf, 1, 0) > 0)
             __atomic_fetch_add(&p->collisions, 1, __ATOMIC_RELAXED);
         write_all(p, r->out + i, 1);
-        __atomic_fetch_add(&p->paced_sent, 1, __ATOMIC_RELEASE);
+        __atomic_fetch_add(&p->reply_sent, 1, __ATOMIC_RELEASE);
         if (i + 1 < r->len)
             t_sleep_us(r->pace_us);
     }
@@ -272,14 +294,6 @@ static void *peer_main(void *arg)
                                                                     __ATOMIC_ACQ_REL); i++)
             t_sleep_ms(1);
         peer_write(p, &r);
-        while (r.deaf) { /* what came in while busy was not heard */
-            uint8_t junk[64];
-            struct pollfd pf = {p->master, POLLIN, 0};
-            ssize_t k;
-            if (poll(&pf, 1, 0) <= 0 || (k = read(p->master, junk, sizeof junk)) <= 0)
-                break;
-            __atomic_fetch_add(&p->ignored, (long)k, __ATOMIC_RELAXED);
-        }
     }
     return NULL;
 }
@@ -357,9 +371,15 @@ int peer_collisions(peer_t *p)
     return __atomic_load_n(&p->collisions, __ATOMIC_RELAXED);
 }
 
-int peer_paced_sent(peer_t *p)
+int peer_reply_sent(peer_t *p)
 {
-    return __atomic_load_n(&p->paced_sent, __ATOMIC_ACQUIRE);
+    return __atomic_load_n(&p->reply_sent, __ATOMIC_ACQUIRE);
+}
+
+int peer_pending(peer_t *p)
+{
+    int n = 0;
+    return ioctl(p->master, FIONREAD, &n) == 0 ? n : -1;
 }
 
 void peer_release(peer_t *p)
@@ -507,8 +527,8 @@ void peer_answer_late_deaf(peer_t *p, int n, const uint8_t *frame, int flen, pee
     peer_answer(p, n, frame, flen, r);
     if (n == late_n) {
         r->delay_ms = delay_ms;
-        r->pace_us = 1;
-        r->deaf = 1;
+        r->deaf = 1; /* written at once: no pause inside it that a loaded machine could
+                        stretch into a silence, splitting it into two frames */
     }
 }
 

@@ -98,6 +98,30 @@ class RawPort:
             time.sleep(0.005)
         return got
 
+    def ask(self, sim, data, timeout=10.0):
+        """Send a request to the simulator `sim` and read its answer, waiting on the
+        simulator's frame log instead of a fixed time: it logs each reply as it writes it
+        (a dropped one as an empty frame), and this reads exactly those bytes from the port,
+        however long a loaded machine holds either side back (a fixed wait took a reply that
+        came late for a missing one). Clears the simulator's log."""
+        import time
+        if isinstance(data, str):
+            data = bytes.fromhex(data)
+        sim.log()                           # clear: the answer is the next "tx" entry
+        self.ser.reset_input_buffer()
+        self.ser.write(data)
+        self.ser.flush()
+        end, tx = time.monotonic() + timeout, []
+        while not tx and time.monotonic() < end:
+            tx = [f["hex"] for f in sim.log() if f["dir"] == "tx"]
+            time.sleep(0.002)
+        assert len(tx) == 1, f"the simulator logged {len(tx)} answers to one request: {tx}"
+        sent, got = bytes.fromhex(tx[0]), b""
+        while len(got) < len(sent) and time.monotonic() < end:
+            got += self.ser.read(512)
+            time.sleep(0.002)
+        return got
+
     def close(self):
         self.ser.close()
 

@@ -132,10 +132,10 @@ def test_exception_is_not_applied(sim, raw_factory):
 def test_count_skip_and_only_that_device(sim, raw_factory):
     raw = raw_factory(sim.port)
     sim.ctl("fault", addr=1, kind="drop", count=2, skip=1)
-    results = [hexu(raw.xfer(READ, wait=0.15)) for _ in range(4)]
+    results = [hexu(raw.ask(sim, READ)) for _ in range(4)]
     assert results == [GOOD, "", "", GOOD]
     sim.ctl("fault", addr=1, kind="drop", count=-1)
-    assert raw.xfer(READ, wait=0.15) == b"" and raw.xfer(READ, wait=0.15) == b""
+    assert raw.ask(sim, READ) == b"" and raw.ask(sim, READ) == b""
     assert hexu(raw.xfer(crc("02 03 00 00 00 01"))) == crc("02 03 02 00 64")
 
 
@@ -153,7 +153,7 @@ def _pattern(seed):
         raw = simctl_raw(s.port)
         try:
             s.ctl("fault", addr=1, kind="drop", prob=0.5, count=-1)
-            return "".join("x" if raw.xfer(READ, wait=0.1) == b"" else "." for _ in range(16))
+            return "".join("x" if raw.ask(s, READ) == b"" else "." for _ in range(16))
         finally:
             raw.close()
 
@@ -266,7 +266,7 @@ def test_several_probabilistic_faults_on_one_device_all_fire():
             s.ctl("fault", addr=1, kind="drop", prob=0.3, count=-1)
             s.ctl("fault", addr=1, kind="bad_crc", prob=0.5, count=-1)
             s.ctl("fault", addr=1, kind="wrong_slave", prob=0.5, count=-1)
-            replies = [hexu(raw.xfer(READ, wait=0.08)) for _ in range(40)]
+            replies = [hexu(raw.ask(s, READ)) for _ in range(40)]
             applied = s.ctl("stats")["devices"]["1"]["faults"]
         finally:
             raw.close()
@@ -279,7 +279,7 @@ def test_several_faults_count_their_own_skips(sim, raw_factory):
     raw = raw_factory(sim.port)
     sim.ctl("fault", addr=1, kind="drop", count=1, skip=1)
     sim.ctl("fault", addr=1, kind="exception", code=4, count=1, skip=1)
-    results = [hexu(raw.xfer(READ, wait=0.15)) for _ in range(4)]
+    results = [hexu(raw.ask(sim, READ)) for _ in range(4)]
     assert results == [GOOD, "", crc("01 83 04"), GOOD]
 
 

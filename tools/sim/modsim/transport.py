@@ -227,8 +227,8 @@ class SerialLine:
             if generation != self.generation or self.fd is None:
                 return
             self.bus.record("tx", data, info, tag)
-            if not self.pace:
-                self._write(data)
+            if not self.pace or self.ptyline is not None:   # ptyline paces it (one write:
+                self._write(data)                          # no stall can split the frame)
                 return
             loop = asyncio.get_running_loop()
             start, sent, ct = loop.time(), 0, self.line.char_time
