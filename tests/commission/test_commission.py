@@ -419,3 +419,20 @@ def test_scan_finds_a_device_whose_reply_comes_late():
     assert r.returncode == 0, r.stdout + r.stderr
     rows = [line.split() for line in r.stdout.splitlines() if line[:7].strip().isdigit()]
     assert [(int(x[0]), x[1]) for x in rows] == [(4, "MV-D94/VD")], r.stdout
+
+
+def test_scan_takes_no_late_or_foreign_reply_for_another_address():
+    """A reply two probes late (it lands in the probe of the address after next) and a reply
+    carrying another address (8 answers as 9): the scan probes again with the line settled and
+    reports each device at its own address, nothing at the addresses whose probes heard them."""
+    with Simulator(["mvd94:4", "mvd94:8"], baud=9600, fmt="8N2") as sim:
+        sim.control({"op": "fault", "addr": 4, "kind": "late", "delay_ms": 150, "count": 1})
+        sim.control({"op": "fault", "addr": 8, "kind": "wrong_slave", "slave": 9, "count": 1})
+        r = tool("scan", sim.port, "--address", "3-10", "--baud", 9600, "--format", "8N2",
+                 "--framing", "rtu", "--no-progress")
+        log = sim.control({"op": "log"})["frames"]
+    assert r.returncode == 0, r.stdout + r.stderr
+    rows = [line.split() for line in r.stdout.splitlines() if line[:7].strip().isdigit()]
+    assert [(int(x[0]), x[1]) for x in rows] == [(4, "MV-D94/VD"), (8, "MV-D94/VD")], r.stdout
+    assert any(f["dir"] == "tx" and f["hex"].split()[0] == "09" for f in log), \
+        "the foreign reply was not sent: the test tests nothing"

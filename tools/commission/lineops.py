@@ -20,6 +20,13 @@ FACTORY_MODELS = {FACTORY[0]: ("mvd94", "mts9"), FACTORY[1]: ("fdc100",), FACTOR
 FORMATS = ["8N1", "8N2", "8E1", "8O1", "8E2", "8O2", "7N2", "7E1", "7O1", "7E2", "7O2"]
 MAX_RUN = 32          # words per backup read (the FDC's own limit is uncertain: 79 or 80)
 EXIT_PORT, EXIT_DEVICE = 3, 4
+# The reply timeout where something answered: a scan's probe that was answered, garbled or
+# answered by another address is worked out again with it, and backup/restore use it. A device
+# on a busy line (or a simulator on a loaded machine) may answer later than the shims' shortest
+# timeout; its reply must then be neither lost nor taken for another address's. Silent addresses
+# keep the short timeout (the sweep's time); this costs time only where something answered.
+SLOW_TIMEOUT_MS = 500
+SLOW_RETRIES = 1
 
 
 class LineError(Exception):
@@ -101,11 +108,12 @@ def check_port(port: str) -> None:
 _PROBE_BUS: dict = {}     # the line of the scan's probes, by setting (open_line closes it)
 
 
-def open_line(lib, port, baud, fmt, framing, retries=-1) -> int:
+def open_line(lib, port, baud, fmt, framing, retries=-1, timeout_ms=0) -> int:
     """A fresh bus (every bus before it is closed: a new line setting needs a new bus)."""
     _PROBE_BUS.clear()
     lib.shutdown()
-    bus = lib.open_bus(port, baud, fmt[1], int(fmt[0]), int(fmt[2]), framing, 0, retries)
+    bus = lib.open_bus(port, baud, fmt[1], int(fmt[0]), int(fmt[2]), framing, timeout_ms,
+                       retries)
     if bus < 0:
         raise LineError(2, f"{port} at {baud} {fmt} {framing}: {lib.strerror(-bus)}")
     return bus
@@ -165,33 +173,52 @@ def _passes(lib, args, plan, bar, found, seen, t0):
         for setting, pass_addrs in p:
             baud, fmt, framing = setting
             bar.set_description(f"pass {i}/{len(plan)} {baud} {fmt} {framing}")
-            before = None                    # the address probed before, when it was silent
+            silent = []                      # (time sent, address) of its silent probes
             for a in pass_addrs:
-                rc, read = probe(lib, args, setting, a, fresh=not args.settle)
+                sent = time.monotonic()
+                rc, read, dev = probe(lib, args, setting, a, fresh=not args.settle)
                 bar.update(probe_seconds(baud, fmt, framing))
-                if rc in (E_CRC, E_BADREPLY) and not args.settle:
-                    # garbled, or another address's reply: a late reply of the silent address
-                    # before can be heard here. Both again, with the shims' settle between.
-                    again = [before, a] if before else [a]
-                    bus = open_line(lib, args.port, baud, fmt, framing, retries=0)
-                    for b in again:
-                        read = reader(lib, lib.open_device(bus, b))
-                        rc, _ = read(3, 0, 1)
-                        if b != a:
-                            _identify(read, rc, b, setting, found, seen, tqdm)
-                    if rc in (E_CRC, E_BADREPLY):
-                        tqdm.write(f"a garbled or foreign reply at {a}, {baud} {fmt} "
-                                   f"{framing.upper()}, twice: noise, or a device slower than "
-                                   "the reply timeout")
-                _identify(read, rc, a, setting, found, seen, tqdm)
-                before = a if rc == E_TIMEOUT else None
+                if args.settle:
+                    _identify(read, rc, a, setting, found, seen, tqdm)
+                elif rc == E_TIMEOUT and not lib.stray_bytes(dev):
+                    silent.append((sent, a))
+                else:
+                    # answered, garbled, answered by another address, or bytes heard before
+                    # the request: the answer may be a late reply of an address probed before
+                    # (within the slow timeout), or of an earlier request to this one, and
+                    # bytes heard before it a late reply dropped. Those and this one again.
+                    window = SLOW_TIMEOUT_MS / 1000 + probe_seconds(baud, fmt, framing)
+                    again = [b for t, b in silent if sent - t < window] if rc in (
+                        E_CRC, E_BADREPLY, E_TIMEOUT) else []
+                    _recheck(lib, args, setting, again + [a], found, seen, tqdm)
+                    silent = []
         tqdm.write(f"pass {i} done ({title}) after {time.monotonic() - t0:.1f} s: "
                    f"{len(found)} instrument(s) found so far")
         sys.stdout.flush()
 
 
+def _recheck(lib, args, setting, addrs, found, seen, tqdm) -> None:
+    """Probe addrs again and identify what answers, on a line with the slow timeout and a
+    retry: first the line is left silent for that timeout (a late reply still under way is
+    heard and dropped by the shims before the request), and after each silent address the
+    shims owe the settle (its late reply cannot be taken for the next one's). What answered
+    the first probe but not this one was another request's late reply: not reported."""
+    baud, fmt, framing = setting
+    bus = open_line(lib, args.port, baud, fmt, framing, retries=SLOW_RETRIES,
+                    timeout_ms=SLOW_TIMEOUT_MS)
+    time.sleep(SLOW_TIMEOUT_MS / 1000)
+    for b in addrs:
+        read = reader(lib, lib.open_device(bus, b))
+        rc, _ = read(3, 0, 1)
+        if rc in (E_CRC, E_BADREPLY):
+            tqdm.write(f"a garbled or foreign reply at {b}, {baud} {fmt} {framing.upper()}, "
+                       f"again after {SLOW_TIMEOUT_MS} ms of silence: noise, or a device "
+                       "slower than that")
+        _identify(read, rc, b, setting, found, seen, tqdm)
+
+
 def probe(lib, args, setting, a, fresh: bool):
-    """One FC03 of register 0 at address a, one attempt: (rc, read). fresh: on a line opened
+    """One FC03 of register 0 at address a, one attempt: (rc, read, device handle). fresh: on a line opened
     for it, so that it owes no settle (the shims' response timeout of silence after a request
     another address left unanswered, which would double the cost of every silent address);
     else on the line of the probe before (opened when the setting changes)."""
@@ -200,9 +227,10 @@ def probe(lib, args, setting, a, fresh: bool):
     if fresh or bus is None:
         bus = open_line(lib, args.port, baud, fmt, framing, retries=0)
         _PROBE_BUS[setting] = bus
-    read = reader(lib, lib.open_device(bus, a))
+    dev = lib.open_device(bus, a)
+    read = reader(lib, dev)
     rc, _ = read(3, 0, 1)
-    return rc, read
+    return rc, read, dev
 
 
 def _identify(read, rc, a, setting, found, seen, tqdm) -> None:
@@ -226,7 +254,8 @@ def _find(lib, args):
     (read, Found, format, device handle)."""
     check_port(args.port)
     for fmt in [args.format.upper()] if args.format else ["8N2", "8E1", "8N1"]:
-        bus = open_line(lib, args.port, args.baud, fmt, args.framing)
+        bus = open_line(lib, args.port, args.baud, fmt, args.framing,
+                        timeout_ms=SLOW_TIMEOUT_MS)
         dev = lib.open_device(bus, args.address)
         read = reader(lib, dev)
         f = ins.identify(read, args.address, args.baud, fmt, args.framing)

@@ -30,6 +30,14 @@ E_EXCEPTION_BASE = 128
 MAX_READ = 125
 
 
+class Diag(ctypes.Structure):
+    """mbfb_diag_t (c_shims/include/mbfb.h), in its order."""
+    _fields_ = [(n, ctypes.c_int32 if n == "last_error" else ctypes.c_uint32) for n in (
+        "requests", "good", "timeouts", "crc_errors", "bad_replies", "exceptions", "retries",
+        "last_exception", "last_rtt_us", "offline", "last_error", "stray_bytes", "resyncs",
+        "refreshes", "refresh_us", "line_permille")]
+
+
 class ShimsError(RuntimeError):
     """The shared library is missing or does not load."""
 
@@ -69,6 +77,7 @@ class Shims:
         lib.mbfb_post_write.argtypes = [i, i, i, i, u16p, i]
         lib.mbfb_poll.argtypes = [i]
         lib.mbfb_take.argtypes = [i, u16p, i]
+        lib.mbfb_dev_diag.argtypes = [i, ctypes.POINTER(Diag)]
         lib.mbfb_strerror.argtypes = [i]
         lib.mbfb_strerror.restype = ctypes.c_char_p
 
@@ -103,6 +112,12 @@ class Shims:
 
     def open_device(self, bus: int, slave: int) -> int:
         return self.lib.mbfb_dev_open(bus, slave)
+
+    def stray_bytes(self, dev: int) -> int:
+        """Bytes the device's bus heard outside any reply and dropped (a late reply of an
+        earlier request heard in the silence before a request, or noise)."""
+        d = Diag()
+        return d.stray_bytes if self.lib.mbfb_dev_diag(dev, ctypes.byref(d)) == 0 else 0
 
     def _wait(self, req: int, count: int) -> tuple[int, list]:
         """Poll a posted request until it ends: (0, words) or (positive MBFB_E_*, [])."""
