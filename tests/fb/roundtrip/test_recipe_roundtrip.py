@@ -18,7 +18,6 @@ anyone else; the block's SettingsWritten is that number of fields.
 from __future__ import annotations
 
 import argparse
-import fcntl
 import json
 import os
 import shutil
@@ -30,12 +29,15 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(HERE)))
 sys.path.insert(0, os.path.join(ROOT, "tools", "sim"))
 sys.path.insert(0, os.path.join(ROOT, "maps"))
+sys.path.insert(0, os.path.dirname(HERE))
+sys.path.insert(0, os.path.join(ROOT, "tests", "strucpp"))
 import settings  # noqa: E402  maps/settings.py
+from run_fb_test import skip  # noqa: E402  exit 77, or 1 under MBFB_REQUIRE_TOOLCHAIN=1
+from run_strucpp import build  # noqa: E402  cmake --build of one target, one build at a time
 
 TOOL = os.path.join(ROOT, "tools", "commission", "mbcommission.py")
 TEMPLATE = os.path.join(HERE, "roundtrip.st")
 MARKER = "(*@RECIPES*)"
-SKIP = 77
 
 # kind, the program's recipe name, its block's note name, A (tuned) and B (defaults)
 MODELS = [
@@ -48,14 +50,6 @@ MODELS = [
     ("mts9", "RecipeMTS9", "MT-S9", "mts9:5:Decimal Set=2", "mts9:6"),
 ]
 MIN_DIFFER = {"mvd94": 8, "fdc100": 8, "mts9": 1}   # A really is another product than B
-
-
-def skip(reason: str) -> int:
-    print(f"SKIP: {reason}")
-    if os.environ.get("MBFB_REQUIRE_TOOLCHAIN") == "1":
-        print("MBFB_REQUIRE_TOOLCHAIN=1: a missing toolchain is a failure")
-        return 1
-    return SKIP
 
 
 def tool(*args) -> subprocess.CompletedProcess:
@@ -74,16 +68,6 @@ def backup(port: str, addr: int, out: str, *extra) -> tuple[dict, str]:
 def recipe_raw(kind: str, data: dict) -> dict:
     """field -> raw word(s) of a backup's recipe fields."""
     return {s.field: data["registers"][s.reg.name]["raw"] for s in settings.fields(kind)}
-
-
-def build(build_dir: str, target: str) -> tuple[int, str]:
-    """cmake --build of the program, one build at a time in the tree (the lock the strucpp tests
-    take: ctest -j runs builds at test time beside each other)."""
-    with open(os.path.join(build_dir, ".mbfb-test-build.lock"), "w") as lock:
-        fcntl.flock(lock, fcntl.LOCK_EX)
-        p = subprocess.run(["nice", "-n", "10", "cmake", "--build", build_dir, "--target", target,
-                            "-j2"], capture_output=True, text=True)
-    return p.returncode, p.stdout + p.stderr
 
 
 def writes(frames: list) -> list:
