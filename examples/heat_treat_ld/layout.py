@@ -1,12 +1,14 @@
 #!/usr/bin/env python3
 """layout.py --editor DIR --palette MBFB_Blocks.xml [--out DIR] - write examples/heat_treat_ld:
-lay out the LD rungs of plc.xml, then let the OpenPLC Editor's own code (a checkout of
+lay out the LD rungs of plc.xml and add the two ST function blocks they call (Recipe_Request,
+read from the ST example, and Line_Products), then let the OpenPLC Editor's own code (a checkout of
 github.com/thiagoralves/editor, run headless by plc_lib/editor/editor_tool.py) load the project,
 save plc.xml with its serializer and write heat_treat_ld.st with its PLCGenerator.
 
 Development aid, not run in CI (the Editor is not a build dependency); needs a Python with lxml.
-The Editor's loader gives every block's pins (its standard library and our palette), so each
-block is written with all its pins in the Editor's order, as the Editor saves them.
+The Editor's loader gives every block's pins (its standard library and our palette; the ST
+function blocks' from their declarations), so each block is written with all its pins in the
+Editor's order, as the Editor saves them.
 """
 import argparse
 import os
