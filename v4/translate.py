@@ -15,7 +15,8 @@
                  STruC++ accepts of the plain ST.
 --workarounds    rewrite the ST constructs STruC++ does not accept today (v4/README.md, "gaps"):
                  G1 a named initialiser in a declaration `x : T := (A := v);` (FB instance
-                 or structure) -> plain declaration, `x.A := v;` once, in the first scan;
+                 or structure) -> plain declaration, `x.A := v;` once, in the first scan
+                 (a CONSTANT one becomes a variable: a constant cannot be assigned);
                  G2 a FUNCTION's VAR_INPUT without an initial value -> given its type's
                  default (IEC: an input not given in a call takes its initial value);
                  G4 a '(*' inside a comment (matiec ends a comment at the first '*)', STruC++
@@ -240,12 +241,19 @@ def workarounds(src, fname, enums, notes):
     clean = strip_comments(src)
     # G1: named initialisers in declarations (FB instance or structure): `x : T := (A := v);`
     pat = re.compile(r"(\w+)\s*:\s*(\w+)\s*:=\s*\(((?:\s*\w+\s*:=\s*[^,();]+,?)+)\)\s*;")
+    # A CONSTANT one (a recipe pasted from `mbcommission backup --st`) cannot be assigned: it
+    # leaves its CONSTANT section for the POU's added VAR section (a variable, assigned once).
+    sections = list(re.finditer(r"\bVAR(?:_\w+)?\b(\s+CONSTANT\b)?", clean))
     edits = []
     for m in pat.finditer(clean):
         params = [tuple(x.split(":=", 1)) for x in m.group(3).split(",") if x.strip()]
-        edits.append((m.start(), m.end(), f"{m.group(1)} : {m.group(2)};", m.group(1), params))
+        head = [x for x in sections if x.start() < m.start()]
+        const = bool(head and head[-1].group(1))
+        edits.append((m.start(), m.end(), "" if const else f"{m.group(1)} : {m.group(2)};",
+                      m.group(1), params, f" {m.group(1)} : {m.group(2)};" if const else ""))
         notes.append(f"G1 {fname}:{clean.count(chr(10), 0, m.start()) + 1}: "
-                     f"{m.group(1)} : {m.group(2)} := (...) -> assigned once, in the first scan")
+                     f"{m.group(1)} : {m.group(2)} := (...) -> assigned once, in the first scan"
+                     + (" (a variable: a CONSTANT cannot be assigned)" if const else ""))
     # group by POU: one flag and one block of first-scan assignments per POU
     by_pou = {}
     for e in edits:
@@ -257,11 +265,12 @@ def workarounds(src, fname, enums, notes):
         es = by_pou[pe]
         last_end_var = [x.end() for x in re.finditer(r"\bEND_VAR\b", clean[:pe])][-1]
         assigns = "".join(f"    {inst}.{p.strip()} := {v.strip()};\n"
-                          for _, _, _, inst, params in es for p, v in params)
-        block = ("\n  VAR mbfb_v4_init : BOOL; END_VAR\n"
+                          for _, _, _, inst, params, _ in es for p, v in params)
+        moved = "".join(e[5] for e in es)
+        block = (f"\n  VAR mbfb_v4_init : BOOL;{moved} END_VAR\n"
                  "  IF NOT mbfb_v4_init THEN\n    mbfb_v4_init := TRUE;\n" + assigns + "  END_IF;\n")
         src = src[:last_end_var] + block + src[last_end_var:]
-        for s_, e_, rep, _, _ in sorted(es, reverse=True):
+        for s_, e_, rep, _, _, _ in sorted(es, reverse=True):
             src = src[:s_] + rep + src[e_:]
     clean = strip_comments(src)
     # G5: TIME_TO_LREAL gives seconds in matiec, milliseconds in STruC++ (CODESYS): a count

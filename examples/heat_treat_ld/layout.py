@@ -1,15 +1,18 @@
 #!/usr/bin/env python3
 """layout.py --editor DIR --palette MBFB_Blocks.xml [--out DIR] - write examples/heat_treat_ld:
-lay out the LD rungs of plc.xml, then let the OpenPLC Editor's own code (a checkout of
+lay out the LD rungs of plc.xml and add the two ST function blocks they call (Recipe_Request,
+read from the ST example, and Line_Products), then let the OpenPLC Editor's own code (a checkout of
 github.com/thiagoralves/editor, run headless by plc_lib/editor/editor_tool.py) load the project,
 save plc.xml with its serializer and write heat_treat_ld.st with its PLCGenerator.
 
 Development aid, not run in CI (the Editor is not a build dependency); needs a Python with lxml.
-The Editor's loader gives every block's pins (its standard library and our palette), so each
-block is written with all its pins in the Editor's order, as the Editor saves them.
+The Editor's loader gives every block's pins (its standard library and our palette; the ST
+function blocks' from their declarations), so each block is written with all its pins in the
+Editor's order, as the Editor saves them.
 """
 import argparse
 import os
+import re
 import shutil
 import sys
 import tempfile
@@ -151,6 +154,139 @@ class Ladder:
         return "".join(rail) + "".join(right) + "".join(self.out)
 
 
+# ---------------------------------------------------------------- ST helpers
+# The project's two ST function blocks, called from the ladder: Recipe_Request, the ST example's
+# (read from examples/heat_treat_st/heat_treat_st.st, so the handshake is written once), and
+# Line_Products below, the line's recipes. plc.xml holds each with its interface in XML and its
+# body as ST, as the Editor saves an ST POU.
+ST_EXAMPLE = os.path.join(HERE, "..", "heat_treat_st", "heat_treat_st.st")
+LINE_PRODUCTS = """(* The line's products, one recipe per zone each: product A is the line as it was tuned,
+   captured from the zones' Current once both are first read; product B is A with another set
+   point, PID terms and alarm (as in the ST example). Recipe1 / Recipe2 are the recipes of the
+   products the zones' Recipe_Request ask for (Product1 / Product2); Holding the product both
+   zones hold. *)
+FUNCTION_BLOCK Line_Products
+  VAR_INPUT
+    Valid1 : BOOL;                (* zone 1 (FDC-100): Valid, SettingsAge, Current *)
+    Age1 : TIME;
+    Current1 : FDC_SETTINGS;
+    Product1 : INT;               (* zone 1's Recipe_Request: Product, Held *)
+    Held1 : BOOL;
+    Valid2 : BOOL;                (* zone 2 (MV-D94), the same *)
+    Age2 : TIME;
+    Current2 : MVD94_SETTINGS;
+    Product2 : INT;
+    Held2 : BOOL;
+  END_VAR
+  VAR_OUTPUT
+    Ready : BOOL;                 (* the recipes are known (captured) *)
+    Recipe1 : FDC_SETTINGS;       (* zone 1's Settings *)
+    Recipe2 : MVD94_SETTINGS;     (* zone 2's Settings *)
+    Holding : INT;                (* the product the line holds: 1 = A, 2 = B, 0 = none yet or changing *)
+  END_VAR
+  VAR
+    Z1A : FDC_SETTINGS;
+    Z1B : FDC_SETTINGS;
+    Z2A : MVD94_SETTINGS;
+    Z2B : MVD94_SETTINGS;
+  END_VAR
+  IF NOT Ready AND Valid1 AND Valid2 AND Age1 < T#5s AND Age2 < T#5s THEN
+    Z1A := Current1;
+    Z2A := Current2;
+    Z1B := Z1A;
+    Z1B.SP1 := 165.0;
+    Z1B.PB := 15.0;
+    Z2B := Z2A;
+    Z2B.SV := 145.0;
+    Z2B.A1SP := 5.0;
+    Z2B.PB := 12.0;
+    Z2B.TD := 40;
+    Ready := TRUE;
+  END_IF;
+  IF Product1 = 2 THEN Recipe1 := Z1B; ELSE Recipe1 := Z1A; END_IF;
+  IF Product2 = 2 THEN Recipe2 := Z2B; ELSE Recipe2 := Z2A; END_IF;
+  Holding := 0;
+  IF Held1 AND Held2 AND Product1 = Product2 THEN
+    Holding := Product1;
+  END_IF;
+END_FUNCTION_BLOCK
+"""
+ELEMENTARY = {"BOOL", "SINT", "INT", "DINT", "LINT", "USINT", "UINT", "UDINT", "ULINT", "BYTE", "WORD",
+              "DWORD", "LWORD", "REAL", "LREAL", "TIME", "DATE", "TOD", "DT"}
+SECTIONS = {"VAR_INPUT": "inputVars", "VAR_OUTPUT": "outputVars", "VAR": "localVars"}
+
+
+def st_block(text, name):
+    """FUNCTION_BLOCK `name` of an ST text: (its leading comment, [(section, constant,
+    [(var, type, initial, comment)])], body). Declarations one per line, as ours are."""
+    start = text.index(f"FUNCTION_BLOCK {name}\n")
+    doc = text[text.rindex("(*", 0, start) + 2:text.rindex("*)", 0, start)]
+    doc = " ".join(doc.split())
+    block = text[start:text.index("END_FUNCTION_BLOCK", start)]
+    lines = block.split("\n")[1:]
+    sections, cur, k = [], None, 0
+    while k < len(lines):
+        ln = lines[k].strip()
+        if ln in ("VAR_INPUT", "VAR_OUTPUT", "VAR", "VAR CONSTANT"):
+            cur = (SECTIONS[ln.split()[0]], ln.endswith("CONSTANT"), [])
+            sections.append(cur)
+        elif ln == "END_VAR":
+            cur = None
+        elif cur is not None and ln:
+            m = re.fullmatch(r"(\w+) : (\w+)(?: := ([^;]+))?;\s*(?:\(\*\s*(.*?)\s*\*\))?", ln)
+            assert m, f"{name}: declaration not understood: {ln!r}"
+            cur[2].append(m.groups())
+        elif cur is None and ln:
+            break
+        k += 1
+    body = "\n".join(x[2:] if x.startswith("  ") else x for x in lines[k:]).strip() + "\n"
+    return doc, sections, body
+
+
+def type_xml(t):
+    return f"<{t}/>" if t in ELEMENTARY else "<string/>" if t == "STRING" else f'<derived name="{t}"/>'
+
+
+def var_xml(name, typ, init=None, doc=None, addr=None):
+    a = f' address="{addr}"' if addr else ""
+    v = f'<variable name="{name}"{a}><type>{type_xml(typ) if not typ.startswith("<") else typ}</type>'
+    if init:
+        v += f'<initialValue><simpleValue value="{init}"/></initialValue>'
+    if doc:
+        v += f'<documentation><xhtml:p><![CDATA[{doc}]]></xhtml:p></documentation>'
+    return v + "</variable>"
+
+
+def helpers():
+    """[(name, doc, sections, body)] of the project's ST function blocks."""
+    with open(ST_EXAMPLE, encoding="utf-8") as f:
+        example = f.read()
+    return [("Recipe_Request", *st_block(example, "Recipe_Request")),
+            ("Line_Products", *st_block(LINE_PRODUCTS, "Line_Products"))]
+
+
+def helper_pins(blocks):
+    """block type -> ([inputs], [outputs]) of the helpers, for Ladder.block."""
+    out = {}
+    for name, _, sections, _ in blocks:
+        ins = [v[0] for s, _, vs in sections if s == "inputVars" for v in vs]
+        outs = [v[0] for s, _, vs in sections if s == "outputVars" for v in vs]
+        out[name] = (ins, outs)
+    return out
+
+
+CONSTANT = ' constant="true"'
+
+
+def helper_pou(name, doc, sections, body):
+    iface = "".join(f"<{s}{CONSTANT if const else ''}>"
+                    + "".join(var_xml(n, t, i, d) for n, t, i, d in vs) + f"</{s}>"
+                    for s, const, vs in sections)
+    return (f'<pou name="{name}" pouType="functionBlock"><interface>{iface}</interface>'
+            f'<body><ST><xhtml:p><![CDATA[{body}]]></xhtml:p></ST></body>'
+            f'<documentation><xhtml:p><![CDATA[{doc}]]></xhtml:p></documentation></pou>')
+
+
 # ---------------------------------------------------------------- the rungs
 ZONES = [  # n, block type, slave, instance, what, set point request register, its status register
     (1, "FDC_Controller", 1, "Zone1", "FDC-100", 1024, 9),
@@ -193,13 +329,17 @@ def zone_rungs(ld, y, n, typ, slave, inst, what, hr, status_hr):
     y += 80
 
     ld.comment(40, y, 1400, 30, f"Zone {n}: {typ} ({what}, slave {slave}) polls every 500 ms; "
-               f"WriteSV sends {z}SVSet on a rising edge.")
+               f"WriteSV sends {z}SVSet on a rising edge, WriteSettings the product's recipe "
+               f"(Products.Recipe{n}); SettingsField goes to HR {13 + n}.")
     y += 50
     blk = ld.block(320, y, typ, {"Enable": ("rail", y + 40), "Port": "BusPort", "SlaveId": str(slave),
                                  "Line": "BusLine", "Period": "T#500ms", "WriteSV": f"{z}Write",
-                                 "SVSet": f"{z}SVSet"}, instance=inst, w=200)
+                                 "SVSet": f"{z}SVSet", "WriteSettings": f"{z}RWrite",
+                                 "Settings": f"Products.Recipe{n}"}, instance=inst, w=200)
     ld.coil(900, y + 30, f"{z}Valid", [(blk, "Valid")])
     ld.outvar(940, y + 145, f"{z}Err", (blk, "ErrorID"))
+    px, py = blk.pins["SettingsField"]
+    ld.outvar(px + 100, py - 15, f"{z}RecipeField", (blk, "SettingsField"))
     for k, (pin, var) in enumerate((("PV", f"{z}PV"), ("SV", f"{z}SV"))):
         yy = y + 220 + 140 * k
         m = ld.block(620, yy, "MUL", {"IN1": (blk, pin), "IN2": ld.invar(460, yy + 110, "10.0")}, w=80)
@@ -260,12 +400,41 @@ def alarm_rungs(ld, y, n):
     return y + 120
 
 
+def recipe_rungs(ld, y):
+    """The product request (HR 1026): each zone's Recipe_Request, then Line_Products, before the
+    zones' blocks (which take WriteSettings and Settings from them in the same scan)."""
+    ld.comment(40, y, 1400, 60, "Products: HR 1026 (ProductReq) asks for product 1 (A, the line as tuned) or 2 (B). "
+               "Each zone's Recipe_Request starts its download (WriteSettings) once the recipes are known, "
+               "shows its status in HR 12 / 13 (0 held, 65535 downloading, else the ErrorID) and retries a "
+               "transient error after 2 s; Line_Products holds the recipes and the product held (HR 11).")
+    y += 80
+    for n, _, _, inst, *_ in ZONES:
+        z = f"Z{n}"
+        blk = ld.block(460, y, "Recipe_Request", {"Request": "ProductReq", "Ready": "Products.Ready",
+                                                  "Done": f"{inst}.SettingsDone", "Error": f"{inst}.SettingsError",
+                                                  "ErrorID": f"{inst}.SettingsErrorID"},
+                       instance=f"{z}Recipe", w=200)
+        for pin, var in (("Write", f"{z}RWrite"), ("Status", f"{z}RecipeStatus")):
+            px, py = blk.pins[pin]
+            ld.outvar(px + 100, py - 15, var, (blk, pin))
+        y += ld.height("Recipe_Request") + 40
+    inputs = {}
+    for n, _, _, inst, *_ in ZONES:
+        inputs.update({f"Valid{n}": f"{inst}.Valid", f"Age{n}": f"{inst}.SettingsAge",
+                       f"Current{n}": f"{inst}.Current", f"Product{n}": f"Z{n}Recipe.Product",
+                       f"Held{n}": f"Z{n}Recipe.Held"})
+    blk = ld.block(460, y, "Line_Products", inputs, instance="Products", w=200)
+    px, py = blk.pins["Holding"]
+    ld.outvar(px + 100, py - 15, "ProductHeld", (blk, "Holding"))
+    return y + ld.height("Line_Products") + 40
+
+
 def rungs(ld):
     ld.comment(40, 20, 1400, 60,
                "heat_treat_ld: zone 1 (FDC-100, slave 1) and zone 2 (SetPro MV-D94, slave 2) held at their "
                "set points and the parts counter (MT-S9, slave 3) on one RS-485 line (BusLine: 9600 8N2 RTU); "
                "alarms when a zone leaves its band or a device goes quiet. Modbus map: examples/heat_treat_ld/README.md.")
-    y = 100
+    y = recipe_rungs(ld, 100)
     for zone in ZONES:
         y = zone_rungs(ld, y, *zone)
 
@@ -321,6 +490,11 @@ VARS = [  # name, type, address, initial value, documentation
     ("PartsQuietTmr", '<derived name="TON"/>', None, None, None),
     ("Z1RetryTmr", '<derived name="TON"/>', None, None, None),
     ("Z2RetryTmr", '<derived name="TON"/>', None, None, None),
+    ("Z1Recipe", '<derived name="Recipe_Request"/>', None, None, "zone 1's recipe download"),
+    ("Z2Recipe", '<derived name="Recipe_Request"/>', None, None, "zone 2's recipe download"),
+    ("Products", '<derived name="Line_Products"/>', None, None, "the line's products: a recipe per zone each"),
+    ("Z1RWrite", "<BOOL/>", None, None, "zone 1's WriteSettings: TRUE from the start of a download to its end"),
+    ("Z2RWrite", "<BOOL/>", None, None, "zone 2's WriteSettings"),
 ]
 for _n in (1, 2):
     VARS += [
@@ -347,8 +521,15 @@ VARS += [
     ("Heartbeat", "<UINT/>", "%QW8", None, "HR 8: scan heartbeat"),
     ("Z1SPStatus", "<WORD/>", "%QW9", None, "HR 9: zone 1 set point status: 0 sent (or none yet), else SVErrorID"),
     ("Z2SPStatus", "<WORD/>", "%QW10", None, "HR 10: zone 2 set point status"),
+    ("ProductHeld", "<INT/>", "%QW11", None, "HR 11: the product the line holds: 1 = A, 2 = B, 0 = none yet or changing"),
+    ("Z1RecipeStatus", "<WORD/>", "%QW12", None,
+     "HR 12: zone 1 recipe status: 0 held (or none yet), 65535 downloading, else SettingsErrorID"),
+    ("Z2RecipeStatus", "<WORD/>", "%QW13", None, "HR 13: zone 2 recipe status"),
+    ("Z1RecipeField", "<INT/>", "%QW14", None, "HR 14: zone 1 recipe field refused or failed (SettingsField), 0 = none"),
+    ("Z2RecipeField", "<INT/>", "%QW15", None, "HR 15: zone 2 recipe field"),
     ("Z1SPReq", "<INT/>", "%MW0", None, "HR 1024: zone 1 set point request x10 (0 = none)"),
     ("Z2SPReq", "<INT/>", "%MW1", None, "HR 1025: zone 2 set point request x10 (0 = none)"),
+    ("ProductReq", "<INT/>", "%MW2", None, "HR 1026: product request: 1 = A, 2 = B (0 = keep what the line holds)"),
     ("Z1Valid", "<BOOL/>", "%QX0.0", None, "coil 0"),
     ("Z1OutOfBand", "<BOOL/>", "%QX0.1", None, "coil 1"),
     ("Z1Quiet", "<BOOL/>", "%QX0.2", None, "coil 2"),
@@ -362,23 +543,16 @@ VARS += [
 ]
 
 
-def project(body):
-    vx = []
-    for name, typ, addr, init, doc in VARS:
-        a = f' address="{addr}"' if addr else ""
-        v = f'<variable name="{name}"{a}><type>{typ}</type>'
-        if init:
-            v += f'<initialValue><simpleValue value="{init}"/></initialValue>'
-        if doc:
-            v += f'<documentation><xhtml:p><![CDATA[{doc}]]></xhtml:p></documentation>'
-        vx.append(v + "</variable>")
+def project(body, blocks):
+    vx = [var_xml(name, typ, init, doc, addr) for name, typ, addr, init, doc in VARS]
+    fbs = "".join(helper_pou(*b) for b in blocks)
     return f"""<?xml version='1.0' encoding='utf-8'?>
 <project xmlns:ns1="http://www.plcopen.org/xml/tc6.xsd" xmlns:xhtml="http://www.w3.org/1999/xhtml" xmlns:xsd="http://www.w3.org/2001/XMLSchema" xmlns="http://www.plcopen.org/xml/tc6_0201">
 <fileHeader companyName="modbus-fb" productName="heat_treat_ld" productVersion="1" creationDateTime="2024-01-01T00:00:00"/>
 <contentHeader name="heat_treat_ld" modificationDateTime="2024-01-01T00:00:00"><coordinateInfo>
 <fbd><scaling x="10" y="10"/></fbd><ld><scaling x="10" y="10"/></ld><sfc><scaling x="10" y="10"/></sfc>
 </coordinateInfo></contentHeader>
-<types><dataTypes/><pous><pou name="heat_treat_ld" pouType="program"><interface><localVars>{"".join(vx)}</localVars></interface>
+<types><dataTypes/><pous>{fbs}<pou name="heat_treat_ld" pouType="program"><interface><localVars>{"".join(vx)}</localVars></interface>
 <body><LD>{body}</LD></body></pou></pous></types>
 <instances><configurations><configuration name="Config0"><resource name="Res0">
 <task name="MainTask" priority="0" interval="T#50ms"><pouInstance name="HeatTreatLD" typeName="heat_treat_ld"/></task>
@@ -398,12 +572,14 @@ def main():
     for cat in structures.StdBlckLst:
         for b in cat["list"]:
             pins.setdefault(b["name"], ([i[0] for i in b["inputs"]], [o[0] for o in b["outputs"]]))
+    blocks = helpers()
+    pins.update(helper_pins(blocks))
     ld = Ladder(pins)
     height = rungs(ld)
     with tempfile.TemporaryDirectory() as tmp:
         raw = os.path.join(tmp, "plc.xml")
         with open(raw, "w", encoding="utf-8") as f:
-            f.write(project(ld.body(height)))
+            f.write(project(ld.body(height), blocks))
         # the Editor's serializer writes plc.xml; its generator writes the ST from that file
         editor_tool.generate_st(raw, os.path.join(args.out, "heat_treat_ld.st"), resave=True)
         shutil.move(raw, os.path.join(args.out, "plc.xml"))

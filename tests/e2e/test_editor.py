@@ -132,10 +132,15 @@ def ld():
     root = ET.parse(os.path.join(LD_DIR, "plc.xml")).getroot()
     ET.parse(os.path.join(LD_DIR, "beremiz.xml"))  # the Editor opens a folder with both
     pous = root.findall(q("types/pous/pou"), NS)
-    assert [(p.get("name"), p.get("pouType")) for p in pous] == [("heat_treat_ld", "program")]
-    body = pous[0].find(q("body/LD"), NS)
+    # the program in LD, and the two ST function blocks it calls (the product recipes)
+    assert [(p.get("name"), p.get("pouType")) for p in pous] == [
+        ("Recipe_Request", "functionBlock"), ("Line_Products", "functionBlock"),
+        ("heat_treat_ld", "program")]
+    for fb in pous[:2]:
+        assert fb.find(q("body/ST"), NS) is not None, f"{fb.get('name')}'s body is not ST"
+    body = pous[2].find(q("body/LD"), NS)
     assert body is not None, "the program's body is not LD"
-    return root, pous[0], body
+    return root, pous[2], body
 
 
 def st_text():
@@ -170,7 +175,7 @@ def test_ld_is_a_ladder_with_our_blocks_wired(ld, palette):
 
 def st_vars(st):
     """{name: (address, type, initial)} of the ST program's declarations."""
-    prog = st.split("END_PROGRAM")[0]
+    prog = st.split("END_PROGRAM")[0].split("\nPROGRAM ")[1]
     out = {}
     for m in re.finditer(r"^\s*(\w+)(?: AT (%\S+))? : ([^:;]+?)(?: := ([^;]+))?;$", prog, re.M):
         out[m.group(1)] = (m.group(2), m.group(3).strip(), m.group(4))
@@ -228,4 +233,35 @@ def test_ld_set_point_request_is_sent_only_when_valid_and_settled_on_the_result(
                               (f"Zone{n}.SVDone", True), (f"Zone{n}.SVError", True)}
         assert st_vars(st)[f"Z{n}SPStatus"] == (f"%QW{8 + n}", "WORD", None)
         assert re.search(rf"MOVE\(EN := Z{n}End, IN := Zone{n}\.SVErrorID", st)
-        assert re.search(rf"WriteSV := Z{n}Write, SVSet := Z{n}SVSet\)", st)
+        assert re.search(rf"WriteSV := Z{n}Write, SVSet := Z{n}SVSet[,)]", st)
+
+
+def test_ld_product_request_downloads_each_zones_recipe(ld):
+    """HR 1026 (ProductReq) drives each zone's Recipe_Request (the ST example's, the same text),
+    whose Write is the zone's WriteSettings and whose product selects the recipe Line_Products
+    gives the zone's Settings, in that order in the scan; the status registers of the ST
+    example's map (HR 11..15)."""
+    root, _, body = ld
+    st = st_text()
+    with open(os.path.join(oplc.ROOT, "examples", "heat_treat_st", "heat_treat_st.st")) as f:
+        example = f.read()
+    fb = st.split("FUNCTION_BLOCK Recipe_Request")[1].split("END_FUNCTION_BLOCK")[0]
+    want = example.split("FUNCTION_BLOCK Recipe_Request")[1].split("END_FUNCTION_BLOCK")[0]
+    code = lambda t: [x.strip() for x in t.split("END_VAR")[-1].strip().splitlines()]  # noqa: E731
+    assert code(fb) == code(want), "Recipe_Request is not the ST example's"
+    v = st_vars(st)
+    assert v["ProductReq"] == ("%MW2", "INT", None)
+    assert v["ProductHeld"] == ("%QW11", "INT", None)
+    calls = [st.index(f"{c}(") for c in ("Z1Recipe", "Z2Recipe", "Products", "Zone1", "Zone2")]
+    assert calls == sorted(calls), "the requests, then the recipes, then the zones"
+    for n in (1, 2):
+        assert v[f"Z{n}RecipeStatus"] == (f"%QW{11 + n}", "WORD", None)
+        assert v[f"Z{n}RecipeField"] == (f"%QW{13 + n}", "INT", None)
+        assert re.search(rf"Z{n}Recipe\(Request := ProductReq, Ready := Products\.Ready, "
+                         rf"Done := Zone{n}\.SettingsDone, Error := Zone{n}\.SettingsError, "
+                         rf"ErrorID := Zone{n}\.SettingsErrorID\);", st)
+        assert re.search(rf"Z{n}RWrite := Z{n}Recipe\.Write;", st)
+        assert re.search(rf"Product{n} := Z{n}Recipe\.Product, Held{n} := Z{n}Recipe\.Held", st)
+        assert re.search(rf"WriteSettings := Z{n}RWrite, Settings := Products\.Recipe{n}\)", st)
+        assert re.search(rf"Z{n}RecipeField := Zone{n}\.SettingsField;", st)
+    assert "ProductHeld := Products.Holding;" in st
