@@ -14,6 +14,8 @@ import os
 import re
 import sys
 
+from generated import write_or_check  # the write-or-check of every generated file
+
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 DEFINE = re.compile(r"^#define\s+(MBFB_OK|MBFB_E_\w+)\s+(\d+)[ \t]*(?:/\*(.*?)\*/)?", re.M | re.S)
 HEAD = """# Error ids
@@ -62,19 +64,8 @@ def main(argv=None) -> int:
     except (OSError, ValueError) as err:
         print(f"errors.py: {a.header}: {err}", file=sys.stderr)
         return 2
-    if a.check:
-        try:
-            with open(a.check, encoding="utf-8") as fh:
-                same = fh.read() == text
-        except OSError as err:
-            print(f"errors.py: {a.check}: {err.strerror}", file=sys.stderr)
-            return 2
-        if not same:
-            print(f"errors.py: {a.check} is stale: run tools/stref/errors.py", file=sys.stderr)
-        return 0 if same else 1
-    with open(a.out, "w", encoding="utf-8") as fh:
-        fh.write(text)
-    return 0
+    return write_or_check("errors.py", text, out=a.out, check=a.check,
+                          hint="tools/stref/errors.py")
 
 
 if __name__ == "__main__":
