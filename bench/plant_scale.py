@@ -61,7 +61,6 @@ import shutil
 import statistics
 import subprocess
 import sys
-import tempfile
 import time
 import types
 
@@ -244,34 +243,17 @@ def wire_run(exe: str, ptyline: str, tmp: str, devs, args) -> dict:
 
 def plant_cost(exe: str, ptyline: str, tmp: str, devs, args) -> list[dict]:
     """Per measured scan: {'prog': Ir, 'ir': {short: Ir}, 'calls': {short: n}, 'pub': {short: n}}."""
-    cg = tempfile.mkdtemp(prefix="cg-", dir=tmp)
     seconds = (args.skip_scans + args.scans) * args.task_ms / 1000.0 + 1.0
     lines = open_lines(ptyline, tmp, devs, args.lines, args.baud)
     try:
-        out = os.path.join(tmp, "plant-cg.txt")
-        with open(out, "w") as fh:
-            proc = subprocess.Popen(["valgrind", "--tool=callgrind", f"--callgrind-out-file={cg}/cg.out",
-                                     "--dump-after=config_run__*", exe, "--run", "--seconds", f"{seconds:g}"],
-                                    stdout=fh, stderr=subprocess.STDOUT)
-            try:
-                rc = proc.wait(seconds * 20 + 300)
-            finally:
-                wp.stop(proc)
-        if rc != 0:
-            raise SystemExit(f"{exe} under callgrind exited {rc}:\n{open(out).read()[-2000:]}")
+        measured = sc.callgrind_scans([exe, "--run", "--seconds", f"{seconds:g}"], tmp, "plant-cg.txt",
+                                      seconds * 20 + 300, args.skip_scans, args.scans)
     finally:
         for x in lines:
             x.close()
-    parts = sorted((int(f.rsplit(".", 1)[1]), f) for f in os.listdir(cg) if re.fullmatch(r"cg\.out\.\d+", f))
-    if len(parts) < args.skip_scans + args.scans:
-        raise SystemExit(f"{exe}: {len(parts)} scans under callgrind, fewer than --skip-scans + --scans")
     bodies = {re.compile(re.escape(b.upper()) + r"_body__\("): s for b, _, s in KINDS}
-    prof = sc.Profile()
     scans = []
-    for k, f in parts:                          # dump k is written after scan k-1 (dump 1: init + scan 0)
-        arcs = prof.parse(os.path.join(cg, f))
-        if not args.skip_scans < k <= args.skip_scans + args.scans:
-            continue
+    for arcs in measured:
         s = {"prog": 0, "ir": {x: 0 for *_, x in KINDS}, "calls": {x: 0 for *_, x in KINDS},
              "pub": {x: 0 for *_, x in KINDS}}
         for (caller, _, _, callee), (calls, ir) in arcs.items():
@@ -286,7 +268,6 @@ def plant_cost(exe: str, ptyline: str, tmp: str, devs, args) -> list[dict]:
                 if callee.startswith("scale_pub_"):
                     s["pub"][callee[len("scale_pub_"):].split("(")[0]] += calls
         scans.append(s)
-    shutil.rmtree(cg)
     return scans
 
 
@@ -336,12 +317,8 @@ def main() -> int:
                          "--skip from wire,cost; times and counts > 0)")
     if "cost" not in skip and not shutil.which("valgrind"):
         raise SystemExit("valgrind not found (Debian package valgrind), or --skip cost")
-    tmp = tempfile.mkdtemp(prefix="plantscale-")
-    old_tmpdir = os.environ.get("TMPDIR")
-    os.environ["TMPDIR"] = tmp               # the simulators' and the runner's temp dirs too
-    tempfile.tempdir = tmp
     started = time.monotonic()
-    try:
+    with wp.own_tmpdir("plantscale-") as tmp:  # the simulators' and the runner's temp dirs too
         devs = plant(args.lines, args.per_line)
         ports = [os.path.join(tmp, f"line{L}") for L in range(args.lines)]
         v = wp.Variant("now", "worktree", tmp, "Debug")
@@ -364,13 +341,6 @@ def main() -> int:
             with open(args.save, "wb") as fh:
                 pickle.dump((res, args), fh)
         report(res, devs, args)
-    finally:
-        tempfile.tempdir = None
-        if old_tmpdir is None:
-            os.environ.pop("TMPDIR", None)
-        else:
-            os.environ["TMPDIR"] = old_tmpdir
-        shutil.rmtree(tmp, ignore_errors=True)
     wp.log(f"total {time.monotonic() - started:.0f} s")
     return 0
 
