@@ -108,12 +108,12 @@ static void short_count(peer_t *p, int n, const uint8_t *f, int len, peer_reply_
     peer_reply_frame(p, r, g, 5);
 }
 
-static int late_ms;
+/* Request 0 is answered when the test releases it (peer_release): after its timeout. */
 static void late_once(peer_t *p, int n, const uint8_t *f, int len, peer_reply_t *r)
 {
     peer_answer(p, n, f, len, r);
     if (n == 0)
-        r->delay_ms = late_ms;
+        r->hold = 1;
 }
 
 /* ---- scenarios --------------------------------------------------------------- */
@@ -242,6 +242,28 @@ static void bad_echo_and_count(void)
     teardown();
 }
 
+/* Let the held late reply to request 0 go once the next frame (a resync read) is on the
+ * line: the peer has read request 0 and holds its reply, so what waits in its input is the
+ * frame sent after the timeout. The late reply then arrives while that read waits for its
+ * answer, however the machine's load delays either thread (a fixed delay of 1.5 timeouts
+ * left each of them half a timeout). */
+static void release_when_next_sent(void)
+{
+    int64_t end = t_now_us() + 10000000;
+    while ((peer_count(&P) < 1 || peer_pending(&P) <= 0) && t_now_us() < end)
+        t_sleep_ms(1);
+    CHECK(peer_pending(&P) > 0);
+    peer_release(&P);
+}
+
+/* The device's stray bytes once they reach `n` (at most 5 s): heard by the idle worker. */
+static long stray_reaching(int dev, long n)
+{
+    for (int64_t end = t_now_us() + 5000000; t_diag(dev).stray_bytes < n && t_now_us() < end;)
+        t_sleep_ms(1);
+    return (long)t_diag(dev).stray_bytes;
+}
+
 /* A reply that comes after the timeout is never the answer to the next request:
  * (a) it arrives while the next request's resync read (FC04: the FC03 shape is
  *     outstanding) waits for its answer: retired, counted, and the wait goes on;
@@ -251,41 +273,45 @@ static void bad_echo_and_count(void)
  *     settle; the late reply to the first attempt arrives in its wait and is retired
  *     there, the resync read's own answer follows, and the request goes again.
  * In (b) the heard late reply frees its shape: the next request is its own resync read.
- * Each still gets its own value. (tests/shims/test_late.c: replies still arriving,
- * babbling.) */
+ * Each still gets its own value. The late reply is held by the peer and let go by the test
+ * at the moment each case names, not after a fixed delay. (tests/shims/test_late.c:
+ * replies still arriving, babbling.) */
 static void late_reply(void)
 {
     uint16_t v[1];
     uint8_t raw[PEER_BUF];
-    int dev;
+    int dev, h;
 
-    late_ms = T_MS * 3 / 2; /* (a) */
-    dev = setup(late_once, 0);
+    dev = setup(late_once, 0); /* (a) */
     CHECK_EQ(t_run(dev, 3, 0, 1, NULL, v, 1), -MBFB_E_TIMEOUT);
-    CHECK_EQ(t_run(dev, 3, 1, 1, NULL, v, 1), 1);
+    h = mbfb_post(dev, 3, 1, 1, NULL);
+    release_when_next_sent();
+    CHECK(t_wait(h) >= MBFB_REQ_DONE);
+    CHECK_EQ(mbfb_take(h, v, 1), 1);
     CHECK_EQ(v[0], 0x1001); /* register 1, not the late 0x1000 of register 0 */
     CHECK_EQ(peer_count(&P), 3); /* the request, the FC04 resync read, the request */
     CHECK(peer_raw(&P, 1, raw) > 0);
     CHECK_EQ(t_diag(dev).stray_bytes, t_read_reply_bytes(framing, 1));
     teardown();
 
-    late_ms = T_MS * 3; /* (b) */
-    dev = setup(late_once, 0);
+    dev = setup(late_once, 0); /* (b) */
     CHECK_EQ(t_run(dev, 3, 0, 1, NULL, v, 1), -MBFB_E_TIMEOUT);
-    t_sleep_ms(T_MS * 4);
+    peer_release(&P); /* the late reply, while nothing is posted */
     /* heard while idle, before any request (the worker used to read it only before the
      * next one) */
-    CHECK_EQ(t_diag(dev).stray_bytes, t_read_reply_bytes(framing, 1));
+    CHECK_EQ(stray_reaching(dev, t_read_reply_bytes(framing, 1)), t_read_reply_bytes(framing, 1));
     CHECK_EQ(t_run(dev, 3, 1, 1, NULL, v, 1), 1);
     CHECK_EQ(v[0], 0x1001);
     CHECK_EQ(peer_count(&P), 2); /* heard before it: the request was its own resync read */
     CHECK_EQ(t_diag(dev).stray_bytes, t_read_reply_bytes(framing, 1));
     teardown();
 
-    late_ms = T_MS * 3 / 2; /* (c) */
-    dev = setup(late_once, 2);
+    dev = setup(late_once, 2); /* (c) */
     peer_set_reg(&P, 1, 5, 0xBEEF);
-    CHECK_EQ(t_run(dev, 3, 5, 1, NULL, v, 1), 1);
+    h = mbfb_post(dev, 3, 5, 1, NULL);
+    release_when_next_sent();
+    CHECK(t_wait(h) >= MBFB_REQ_DONE);
+    CHECK_EQ(mbfb_take(h, v, 1), 1);
     CHECK_EQ(v[0], 0xBEEF);
     CHECK_EQ(peer_count(&P), 3); /* the request, the FC04 resync read, the request */
     CHECK_EQ(t_diag(dev).timeouts, 1);
