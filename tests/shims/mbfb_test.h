@@ -64,6 +64,9 @@ typedef struct peer_reply {
     int delay_ms;             /* wait this long before writing     */
     int pace_us;              /* > 0: one byte, then this pause (a slow line) */
     int hold;                 /* wait for peer_release() (at most 10 s) before writing */
+    int until_input;          /* wait until the master sends again (at most 10 s), then
+                                 write: late, in the wait of the master's next frame,
+                                 with no timer between the two                      */
     int deaf;                 /* busy until this reply is out: requests that came in
                                  before it was written are discarded (a half-duplex
                                  device); what comes after it is heard             */
@@ -116,6 +119,9 @@ int peer_start(peer_t *p, const char *link, int mode, peer_fn fn, void *user);
 /** Stop the thread, remove the link and close the pty (the shims' port is gone). */
 void peer_stop(peer_t *p);
 int peer_count(peer_t *p);
+/** The peer's count of requests once it has read `n` of them, at most 2 s: its thread may
+ *  lag behind requests that it leaves unanswered or that failed fast (e.g. on garbage). */
+int peer_count_reaching(peer_t *p, int n);
 long peer_bytes(peer_t *p);
 int peer_slave_count(peer_t *p, int slave);
 /** Copy request i as received; returns its length. */

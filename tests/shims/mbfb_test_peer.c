@@ -318,6 +318,12 @@ static void *peer_main(void *arg)
         for (int i = 0; r.hold && i < 10000 && !__atomic_exchange_n(&p->released, 0,
                                                                     __ATOMIC_ACQ_REL); i++)
             t_sleep_ms(1);
+        for (int i = 0; r.until_input && i < 500 && !__atomic_load_n(&p->stop, __ATOMIC_ACQUIRE);
+             i++) { /* woken by the input itself: no polling delay a loaded machine stretches */
+            struct pollfd pf = {p->master, POLLIN, 0};
+            if (poll(&pf, 1, 20) > 0)
+                break;
+        }
         peer_write(p, &r);
         if (r.len > 0 && n < PEER_LOG) {
             pthread_mutex_lock(&p->lock);
@@ -440,6 +446,13 @@ int peer_count(peer_t *p)
     n = p->n;
     pthread_mutex_unlock(&p->lock);
     return n;
+}
+
+int peer_count_reaching(peer_t *p, int n)
+{
+    for (int64_t end = t_now_us() + 2000000; peer_count(p) < n && t_now_us() < end;)
+        t_sleep_ms(1);
+    return peer_count(p);
 }
 
 long peer_bytes(peer_t *p)

@@ -64,15 +64,6 @@ static int post_when(int dev, int reg, int count, int (*ready)(void))
     return mbfb_post(dev, 3, reg, count, NULL);
 }
 
-/* The peer's count of requests once it has read them all (its thread may lag behind a
- * request that failed fast, e.g. on garbage): waits until it reaches `n`, at most 2 s. */
-static int peer_count_reaching(int n)
-{
-    for (int64_t end = t_now_us() + 2000000; peer_count(&P) < n && t_now_us() < end;)
-        t_sleep_ms(1);
-    return peer_count(&P);
-}
-
 static int take(int h, uint16_t *v)
 {
     CHECK(t_wait(h) >= MBFB_REQ_DONE);
@@ -229,7 +220,7 @@ static void late_heard_in_resync_wait(void)
     CHECK(t_wait(h) >= MBFB_REQ_DONE);
     CHECK_EQ(mbfb_take(h, v, 1), 1);
     CHECK_EQ(v[0], 0x1000);
-    CHECK_EQ(peer_count_reaching(4), 4); /* the request, two resync reads, the request */
+    CHECK_EQ(peer_count_reaching(&P, 4), 4); /* the request, two resync reads, the request */
     CHECK_EQ(t_diag(dev).crc_errors + t_diag(dev).bad_replies, 0);
     CHECK_EQ(t_diag(dev).offline, 0);
     teardown();
@@ -419,7 +410,7 @@ static void babble_forever(void)
     rc = take(h, v);
     CHECK(rc == -MBFB_E_BADREPLY || rc == -MBFB_E_CRC || rc == -MBFB_E_TIMEOUT);
     CHECK_EQ(v[0], 0);                     /* nothing taken from the babble    */
-    CHECK_EQ(peer_count_reaching(3), 3);   /* both attempts went out anyway    */
+    CHECK_EQ(peer_count_reaching(&P, 3), 3);   /* both attempts went out anyway    */
     d = t_diag(dev);
     CHECK(d.stray_bytes > 0);
     CHECK_EQ(d.retries, 1);
