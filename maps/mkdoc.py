@@ -12,7 +12,7 @@ import os
 import sys
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-STREF = os.path.join(os.path.dirname(HERE), "tools", "stref")  # generated.py: write or check
+STREF = os.path.join(os.path.dirname(HERE), "tools", "stref")  # generated.py
 sys.path.insert(0, HERE)
 import mbmap  # noqa: E402
 
@@ -168,16 +168,11 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description="Generate maps/README.md from maps/*.json.")
     p.add_argument("--check", action="store_true", help="exit 1 if README.md is stale")
     args = p.parse_args(argv)
-    try:
-        text = render()
-    except mbmap.MapError as err:
-        print(f"mkdoc: {err}", file=sys.stderr)
-        return 2
     path = os.path.join(HERE, "README.md")
     sys.path.insert(0, STREF)
-    from generated import write_or_check  # the write-or-check of every generated file
-    return write_or_check("mkdoc", text, out=path,
-                          check=path if args.check else None, hint="python3 maps/mkdoc.py")
+    from generated import generate  # the command line of every generated file
+    return generate("mkdoc", render, mbmap.MapError, out=path,
+                    check=path if args.check else None, hint="python3 maps/mkdoc.py")
 
 
 if __name__ == "__main__":

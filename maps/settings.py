@@ -37,7 +37,7 @@ import sys
 from dataclasses import dataclass
 
 HERE = os.path.dirname(os.path.abspath(__file__))
-STREF = os.path.join(os.path.dirname(HERE), "tools", "stref")  # generated.py: write or check
+STREF = os.path.join(os.path.dirname(HERE), "tools", "stref")  # generated.py
 sys.path.insert(0, HERE)
 import mbmap  # noqa: E402
 
@@ -362,15 +362,10 @@ def main(argv=None) -> int:
     ap.add_argument("--out", help="write the ST types here (default: standard output)")
     ap.add_argument("--check", metavar="FILE", help="exit 1 if FILE differs from what would be written")
     args = ap.parse_args(argv)
-    try:
-        text = render()
-    except mbmap.MapError as err:
-        print(f"settings: {err}", file=sys.stderr)
-        return 2
     sys.path.insert(0, STREF)
-    from generated import write_or_check  # the write-or-check of every generated file
-    return write_or_check("settings", text, out=args.out, check=args.check,
-                          hint="python3 maps/settings.py --out it")
+    from generated import generate  # the command line of every generated file
+    return generate("settings", render, mbmap.MapError, out=args.out, check=args.check,
+                    hint="python3 maps/settings.py --out it")
 
 
 if __name__ == "__main__":

@@ -11,7 +11,7 @@ import pytest
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 sys.path.insert(0, os.path.join(ROOT, "tools", "stref"))
 sys.path.insert(0, os.path.join(ROOT, "maps"))
-from generated import write_or_check  # noqa: E402
+from generated import generate, write_or_check  # noqa: E402
 
 # generator, its committed output, what its stale message tells to run
 GENERATORS = [
@@ -39,6 +39,16 @@ def test_fresh_passes_stale_and_missing_are_caught(tmp_path, capsys):
 def test_without_out_it_writes_to_standard_output(capsys):
     assert write_or_check("t", "x\n") == 0
     assert capsys.readouterr().out == "x\n"
+
+
+def test_bad_input_is_one_line_exit_2_and_nothing_written(tmp_path, capsys):
+    def bad():
+        raise ValueError("no ids in the header")
+    f = tmp_path / "out.txt"
+    assert generate("t", bad, ValueError, out=str(f)) == 2
+    assert capsys.readouterr().err == "t: no ids in the header\n"
+    assert not f.exists()
+    assert generate("t", lambda: "x\n", ValueError, out=str(f)) == 0 and f.read_text() == "x\n"
 
 
 @pytest.mark.parametrize("gen,committed,hint", GENERATORS, ids=lambda v: str(v))

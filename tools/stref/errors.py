@@ -14,7 +14,7 @@ import os
 import re
 import sys
 
-from generated import write_or_check  # the write-or-check of every generated file
+from generated import generate  # the command line of every generated file
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 DEFINE = re.compile(r"^#define\s+(MBFB_OK|MBFB_E_\w+)\s+(\d+)[ \t]*(?:/\*(.*?)\*/)?", re.M | re.S)
@@ -44,7 +44,7 @@ def rows(header_text: str) -> list:
         else:
             out.append((value, name, meaning or ("no error" if name == "MBFB_OK" else "")))
     if len(out) < 10:
-        raise ValueError("fewer than 10 MBFB_E_* ids found")
+        raise ValueError("fewer than 10 MBFB_E_* ids found in the header")
     return out
 
 
@@ -58,14 +58,12 @@ def main(argv=None) -> int:
     p.add_argument("--out", default=os.path.join(ROOT, "docs", "errors.md"))
     p.add_argument("--check", metavar="FILE")
     a = p.parse_args(argv)
-    try:
+
+    def text():
         with open(a.header, encoding="utf-8") as fh:
-            text = render(fh.read())
-    except (OSError, ValueError) as err:
-        print(f"errors.py: {a.header}: {err}", file=sys.stderr)
-        return 2
-    return write_or_check("errors.py", text, out=a.out, check=a.check,
-                          hint="tools/stref/errors.py")
+            return render(fh.read())
+    return generate("errors.py", text, (OSError, ValueError), out=a.out, check=a.check,
+                    hint="tools/stref/errors.py")
 
 
 if __name__ == "__main__":

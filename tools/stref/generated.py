@@ -1,10 +1,11 @@
-"""The one write-or-check of every generated file (st_src/REFERENCE.md, docs/errors.md,
-maps/README.md, st_src/MB_Settings.st): a generator renders its text and hands it here, to be
-written, or compared with the committed file by its staleness test.
+"""The command line of every generated file (st_src/REFERENCE.md, docs/errors.md,
+maps/README.md, st_src/MB_Settings.st), after its arguments: the generator hands its render
+function here; bad input is one line and exit code 2; else the text is written, or compared
+with the committed file by its staleness test (write_or_check).
 
-    from generated import write_or_check
-    sys.exit(write_or_check("stref", text, out=args.out, check=args.check,
-                            hint="tools/stref/stref.py --out it"))
+    from generated import generate
+    sys.exit(generate("stref", lambda: render(...), InputError, out=args.out,
+                      check=args.check, hint="tools/stref/stref.py --out it"))
 
 Python standard library only.
 """
@@ -43,3 +44,17 @@ def write_or_check(tool: str, text: str, out: str | None = None, check: str | No
     else:
         sys.stdout.write(text)
     return 0
+
+
+def generate(tool: str, render, bad_input, out: str | None = None, check: str | None = None,
+             hint: str = "") -> int:
+    """A generator's command line after its arguments: the text from render(); an exception
+    of the types bad_input is bad input, one line "<tool>: <error>" on standard error and exit
+    code 2, nothing written or checked; else write_or_check. The return value is the exit
+    code."""
+    try:
+        text = render()
+    except bad_input as err:
+        print(f"{tool}: {err}", file=sys.stderr)
+        return 2
+    return write_or_check(tool, text, out=out, check=check, hint=hint)

@@ -21,7 +21,7 @@ import os
 import re
 import sys
 
-from generated import write_or_check  # the write-or-check of every generated file
+from generated import generate  # the command line of every generated file
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 CORE = "MB_Device"
@@ -225,16 +225,14 @@ def main(argv=None):
     ap.add_argument("--out", help="write here (default: standard output)")
     ap.add_argument("--check", metavar="FILE", help="exit 1 if FILE differs from what would be written")
     args = ap.parse_args(argv)
-    try:
+
+    def text():
         paths = sorted(glob.glob(os.path.join(args.src, "*.st")))
         if not paths:
             raise InputError(f"{args.src}: no .st files")
-        text = render(parse_pous(paths), shim_errors(args.header))
-    except InputError as err:
-        print(f"stref: {err}", file=sys.stderr)
-        return 2
-    return write_or_check("stref", text, out=args.out, check=args.check,
-                          hint="the build target st_reference (or tools/stref/stref.py --out it)")
+        return render(parse_pous(paths), shim_errors(args.header))
+    return generate("stref", text, InputError, out=args.out, check=args.check,
+                    hint="the build target st_reference (or tools/stref/stref.py --out it)")
 
 
 if __name__ == "__main__":
