@@ -32,7 +32,6 @@ process is stopped by pid, the temp dir is removed.
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import os
 import re
@@ -78,26 +77,6 @@ def stop(proc: subprocess.Popen, sig=signal.SIGTERM, timeout=10.0) -> None:
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait()
-
-
-@contextlib.contextmanager
-def own_tmpdir(prefix: str):
-    """A fresh temporary folder, TMPDIR of this process and its children (the simulators, the
-    runner) while the block runs; then TMPDIR is put back and the folder removed. Yields its
-    path. Used by plant_scale.py and block_blind.py."""
-    tmp = tempfile.mkdtemp(prefix=prefix)
-    old = os.environ.get("TMPDIR")
-    os.environ["TMPDIR"] = tmp
-    tempfile.tempdir = tmp
-    try:
-        yield tmp
-    finally:
-        tempfile.tempdir = None
-        if old is None:
-            os.environ.pop("TMPDIR", None)
-        else:
-            os.environ["TMPDIR"] = old
-        shutil.rmtree(tmp, ignore_errors=True)
 
 
 def cache_value(build: str, key: str) -> str | None:
