@@ -84,13 +84,17 @@ def build(build_dir: str, work: str, sources: list[str], program: str) -> str:
     return exe
 
 
-def run(exe: str, ptyline: str, scan_ms: int) -> dict:
-    """Runs the program on a paced line; returns the log, line stats and window marks."""
-    tmp = tempfile.mkdtemp(prefix="bench-eco-")
+def run_paced(exe: str, ptyline: str, devices: list, prefix: str,
+              smaller: str) -> tuple[str, list, dict]:
+    """Runs bench program exe against the simulator (devices, as simctl takes them) on a line
+    paced by ptyline at 9600 8N2; returns its output, the simulator's log and the line's stats.
+    Exits with the reason when the program fails a check, the line is not paced, or the log
+    overflowed (`smaller`: the option that makes a run smaller). Used by recipe_pace.py too."""
+    tmp = tempfile.mkdtemp(prefix=prefix)
     try:
         link = os.path.join(tmp, "ttyBENCH")
         os.environ["MBFB_PTYLINE"] = ptyline
-        with Simulator([d[3] for d in DEVICES], fmt="8N2", pace=True, link=link, seed=1) as sim:
+        with Simulator(devices, fmt="8N2", pace=True, link=link, seed=1) as sim:
             env = dict(os.environ, MBFB_TEST_PORT=link, MBFB_SIM_CONTROL=sim.control_path,
                        MBFB_MAX_SCANS="100000")
             out = subprocess.run([exe], env=env, capture_output=True, text=True, timeout=900).stdout
@@ -102,12 +106,18 @@ def run(exe: str, ptyline: str, scan_ms: int) -> dict:
         shutil.rmtree(tmp, ignore_errors=True)
     if not line.get("available"):
         raise SystemExit(f"line not paced by ptyline: {line}")
+    if len(frames) >= 4000:
+        raise SystemExit(f"the simulator's log overflowed (4000 frames): use a smaller {smaller}")
+    return out, frames, line["stats"]
+
+
+def run(exe: str, ptyline: str, scan_ms: int) -> dict:
+    """Runs the program on a paced line; returns the log, line stats and window marks."""
+    out, frames, line = run_paced(exe, ptyline, [d[3] for d in DEVICES], "bench-eco-", "-n")
     marks = {}
     for scan, name, what, n in re.findall(r"note scan (\d+): (\w+) (start|end) (\d+)", out):
         marks[(name, what)] = (int(scan), int(n))
-    if len(frames) >= 4000:
-        raise SystemExit("the simulator's log overflowed (4000 frames): use a smaller -n")
-    return {"frames": frames, "line": line["stats"], "marks": marks, "scan_s": scan_ms / 1000.0}
+    return {"frames": frames, "line": line, "marks": marks, "scan_s": scan_ms / 1000.0}
 
 
 def figures(res: dict, n: int) -> dict:

@@ -244,34 +244,17 @@ def wire_run(exe: str, ptyline: str, tmp: str, devs, args) -> dict:
 
 def plant_cost(exe: str, ptyline: str, tmp: str, devs, args) -> list[dict]:
     """Per measured scan: {'prog': Ir, 'ir': {short: Ir}, 'calls': {short: n}, 'pub': {short: n}}."""
-    cg = tempfile.mkdtemp(prefix="cg-", dir=tmp)
     seconds = (args.skip_scans + args.scans) * args.task_ms / 1000.0 + 1.0
     lines = open_lines(ptyline, tmp, devs, args.lines, args.baud)
     try:
-        out = os.path.join(tmp, "plant-cg.txt")
-        with open(out, "w") as fh:
-            proc = subprocess.Popen(["valgrind", "--tool=callgrind", f"--callgrind-out-file={cg}/cg.out",
-                                     "--dump-after=config_run__*", exe, "--run", "--seconds", f"{seconds:g}"],
-                                    stdout=fh, stderr=subprocess.STDOUT)
-            try:
-                rc = proc.wait(seconds * 20 + 300)
-            finally:
-                wp.stop(proc)
-        if rc != 0:
-            raise SystemExit(f"{exe} under callgrind exited {rc}:\n{open(out).read()[-2000:]}")
+        measured = sc.callgrind_scans([exe, "--run", "--seconds", f"{seconds:g}"], tmp, "plant-cg.txt",
+                                      seconds * 20 + 300, args.skip_scans, args.scans)
     finally:
         for x in lines:
             x.close()
-    parts = sorted((int(f.rsplit(".", 1)[1]), f) for f in os.listdir(cg) if re.fullmatch(r"cg\.out\.\d+", f))
-    if len(parts) < args.skip_scans + args.scans:
-        raise SystemExit(f"{exe}: {len(parts)} scans under callgrind, fewer than --skip-scans + --scans")
     bodies = {re.compile(re.escape(b.upper()) + r"_body__\("): s for b, _, s in KINDS}
-    prof = sc.Profile()
     scans = []
-    for k, f in parts:                          # dump k is written after scan k-1 (dump 1: init + scan 0)
-        arcs = prof.parse(os.path.join(cg, f))
-        if not args.skip_scans < k <= args.skip_scans + args.scans:
-            continue
+    for arcs in measured:
         s = {"prog": 0, "ir": {x: 0 for *_, x in KINDS}, "calls": {x: 0 for *_, x in KINDS},
              "pub": {x: 0 for *_, x in KINDS}}
         for (caller, _, _, callee), (calls, ir) in arcs.items():
@@ -286,7 +269,6 @@ def plant_cost(exe: str, ptyline: str, tmp: str, devs, args) -> list[dict]:
                 if callee.startswith("scale_pub_"):
                     s["pub"][callee[len("scale_pub_"):].split("(")[0]] += calls
         scans.append(s)
-    shutil.rmtree(cg)
     return scans
 
 

@@ -18,39 +18,19 @@ import os
 import re
 import shutil
 import statistics
-import subprocess
 import sys
 import tempfile
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, os.path.join(ROOT, "tools", "sim"))
-from simctl import Simulator  # noqa: E402
-from bus_economy import CHAR_S, GAP_S, build, st_sources  # noqa: E402  (bench/ on the path)
+from bus_economy import CHAR_S, GAP_S, build, run_paced, st_sources  # noqa: E402  (bench/ on the path)
 
 FIELDS = 10                      # bench/recipe_pace.st: writes per download (9 fields + LOCK)
 
 
 def run(exe: str, ptyline: str) -> tuple[str, list, dict]:
-    tmp = tempfile.mkdtemp(prefix="bench-recipe-")
-    try:
-        link = os.path.join(tmp, "ttyBENCH")
-        os.environ["MBFB_PTYLINE"] = ptyline
-        with Simulator(["mvd94:1:SV=100.0,DP=1", "vd:2:SV=50.0,DP=1"], fmt="8N2", pace=True,
-                       link=link, seed=1) as sim:
-            env = dict(os.environ, MBFB_TEST_PORT=link, MBFB_SIM_CONTROL=sim.control_path,
-                       MBFB_MAX_SCANS="100000")
-            out = subprocess.run([exe], env=env, capture_output=True, text=True, timeout=900).stdout
-            if "checks passed, 0 failed" not in out:
-                raise SystemExit(f"bench program failed:\n{out[-2000:]}")
-            frames = sim.log()
-            line = sim.ctl("line_stats")
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
-    if not line.get("available"):
-        raise SystemExit(f"line not paced by ptyline: {line}")
-    if len(frames) >= 4000:
-        raise SystemExit("the simulator's log overflowed (4000 frames): use a smaller -k")
-    return out, frames, line["stats"]
+    return run_paced(exe, ptyline, ["mvd94:1:SV=100.0,DP=1", "vd:2:SV=50.0,DP=1"],
+                     "bench-recipe-", "-k")
 
 
 def window(out: str, frames: list, name: str, scan_s: float, turn: float) -> dict:

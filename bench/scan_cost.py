@@ -128,38 +128,49 @@ def scan_figures(arcs: dict, block: str, exe: str) -> dict:
     return out
 
 
+def callgrind_scans(cmd: list, tmp: str, log_name: str, timeout_s: float, skip: int,
+                    n: int) -> list:
+    """Runs cmd, a program that scans, under callgrind with a dump after each scan
+    (config_run__*), its output in tmp/log_name; returns the call arcs (Profile.parse) of scans
+    skip + 1 .. skip + n. Exits with the output's tail when the program fails, or when it
+    scanned fewer times. Used by plant_scale.py too."""
+    cg = tempfile.mkdtemp(prefix="cg-", dir=tmp)
+    out = os.path.join(tmp, log_name)
+    with open(out, "w") as fh:
+        proc = subprocess.Popen(["valgrind", "--tool=callgrind", f"--callgrind-out-file={cg}/cg.out",
+                                 "--dump-after=config_run__*", *cmd], stdout=fh, stderr=subprocess.STDOUT)
+        try:
+            rc = proc.wait(timeout_s)
+        finally:
+            wp.stop(proc)
+    if rc != 0:
+        raise SystemExit(f"{cmd[0]} under callgrind exited {rc}:\n{open(out).read()[-2000:]}")
+    parts = sorted((int(f.rsplit(".", 1)[1]), f) for f in os.listdir(cg) if re.fullmatch(r"cg\.out\.\d+", f))
+    if len(parts) < skip + n:
+        raise SystemExit(f"{cmd[0]}: {len(parts)} scans under callgrind, fewer than --skip-scans + --scans")
+    prof = Profile()
+    scans = []
+    for k, f in parts:                          # dump k is written after scan k-1 (dump 1: init + scan 0)
+        arcs = prof.parse(os.path.join(cg, f))
+        if skip < k <= skip + n:
+            scans.append(arcs)
+    shutil.rmtree(cg)
+    return scans
+
+
 def measure(v: wp.Variant, exe: str, block: str, dev: str, baud: int, fmt: str, port: str,
             tmp: str, args) -> dict:
     """One callgrind run of one program; returns the figures over the measured scans."""
-    cg = tempfile.mkdtemp(prefix="cg-", dir=tmp)
     seconds = (args.skip_scans + args.scans) * args.task_ms / 1000.0 + 1.0
     sim = wp.Simulator([dev], baud=baud, fmt=fmt, pace=args.pace, seed=1, link=port,
                        extra=["--ptyline", "none"] if args.pace else [])
     sim.start()
     try:
-        out = os.path.join(tmp, "host.txt")
-        with open(out, "w") as fh:
-            proc = subprocess.Popen(["valgrind", "--tool=callgrind", f"--callgrind-out-file={cg}/cg.out",
-                                     "--dump-after=config_run__*", exe, "0", f"{seconds:g}", str(args.task_ms)],
-                                    stdout=fh, stderr=subprocess.STDOUT)
-            try:
-                rc = proc.wait(seconds * 10 + 120)
-            finally:
-                wp.stop(proc)
-        if rc != 0:
-            raise SystemExit(f"{exe} under callgrind exited {rc}:\n{open(out).read()[-2000:]}")
+        arcs = callgrind_scans([exe, "0", f"{seconds:g}", str(args.task_ms)], tmp, "host.txt",
+                               seconds * 10 + 120, args.skip_scans, args.scans)
     finally:
         sim.stop()
-    parts = sorted((int(f.rsplit(".", 1)[1]), f) for f in os.listdir(cg) if re.fullmatch(r"cg\.out\.\d+", f))
-    if len(parts) < args.skip_scans + args.scans:
-        raise SystemExit(f"{exe}: {len(parts)} scans under callgrind, fewer than --skip-scans + --scans")
-    prof = Profile()
-    scans = []
-    for k, f in parts:                          # dump k is written after scan k-1 (dump 1: init + scan 0)
-        arcs = prof.parse(os.path.join(cg, f))
-        if args.skip_scans < k <= args.skip_scans + args.scans:
-            scans.append(scan_figures(arcs, block, exe))
-    shutil.rmtree(cg)
+    scans = [scan_figures(a, block, exe) for a in arcs]
     n = len(scans)
     per_fn: dict[str, list] = {}
     for s in scans:

@@ -12,6 +12,7 @@ import os
 import sys
 
 HERE = os.path.dirname(os.path.abspath(__file__))
+STREF = os.path.join(os.path.dirname(HERE), "tools", "stref")  # generated.py
 sys.path.insert(0, HERE)
 import mbmap  # noqa: E402
 
@@ -167,26 +168,11 @@ def main(argv=None) -> int:
     p = argparse.ArgumentParser(description="Generate maps/README.md from maps/*.json.")
     p.add_argument("--check", action="store_true", help="exit 1 if README.md is stale")
     args = p.parse_args(argv)
-    try:
-        text = render()
-    except mbmap.MapError as err:
-        print(f"mkdoc: {err}", file=sys.stderr)
-        return 2
     path = os.path.join(HERE, "README.md")
-    if args.check:
-        try:
-            with open(path, encoding="utf-8") as fh:
-                old = fh.read()
-        except OSError:
-            old = None
-        if old != text:
-            print("mkdoc: maps/README.md is stale: run python3 maps/mkdoc.py", file=sys.stderr)
-            return 1
-        print("mkdoc: maps/README.md is up to date")
-        return 0
-    with open(path, "w", encoding="utf-8") as fh:
-        fh.write(text)
-    return 0
+    sys.path.insert(0, STREF)
+    from generated import generate  # the command line of every generated file
+    return generate("mkdoc", render, mbmap.MapError, out=path,
+                    check=path if args.check else None, hint="python3 maps/mkdoc.py")
 
 
 if __name__ == "__main__":

@@ -31,13 +31,13 @@ Python standard library only.
 from __future__ import annotations
 
 import argparse
-import difflib
 import os
 import re
 import sys
 from dataclasses import dataclass
 
 HERE = os.path.dirname(os.path.abspath(__file__))
+STREF = os.path.join(os.path.dirname(HERE), "tools", "stref")  # generated.py
 sys.path.insert(0, HERE)
 import mbmap  # noqa: E402
 
@@ -362,33 +362,10 @@ def main(argv=None) -> int:
     ap.add_argument("--out", help="write the ST types here (default: standard output)")
     ap.add_argument("--check", metavar="FILE", help="exit 1 if FILE differs from what would be written")
     args = ap.parse_args(argv)
-    try:
-        text = render()
-    except mbmap.MapError as err:
-        print(f"settings: {err}", file=sys.stderr)
-        return 2
-    if args.check:
-        try:
-            with open(args.check, encoding="utf-8") as fh:
-                have = fh.read()
-        except OSError as err:
-            print(f"settings: {args.check}: {err.strerror}", file=sys.stderr)
-            return 1
-        if have != text:
-            diff = difflib.unified_diff(have.splitlines(), text.splitlines(), args.check,
-                                        "generated", lineterm="", n=1)
-            print("\n".join(list(diff)[:40]))
-            print(f"settings: {args.check} is stale: run python3 maps/settings.py --out it",
-                  file=sys.stderr)
-            return 1
-        print(f"settings: {args.check} is up to date")
-        return 0
-    if args.out:
-        with open(args.out, "w", encoding="utf-8") as fh:
-            fh.write(text)
-    else:
-        sys.stdout.write(text)
-    return 0
+    sys.path.insert(0, STREF)
+    from generated import generate  # the command line of every generated file
+    return generate("settings", render, mbmap.MapError, out=args.out, check=args.check,
+                    hint="python3 maps/settings.py --out it")
 
 
 if __name__ == "__main__":

@@ -22,6 +22,7 @@ extern const char *t_scenario;
             t_failures++;                                                               \
             fprintf(stderr, "FAIL %s:%d [%s]: %s\n", __FILE__, __LINE__, t_scenario,    \
                     #cond);                                                             \
+            t_failed();                                                                 \
         }                                                                               \
     } while (0)
 
@@ -32,8 +33,13 @@ extern const char *t_scenario;
             t_failures++;                                                               \
             fprintf(stderr, "FAIL %s:%d [%s]: %s == %lld, expected %s == %lld\n",       \
                     __FILE__, __LINE__, t_scenario, #a, a_, #b, b_);                    \
+            t_failed();                                                                 \
         }                                                                               \
     } while (0)
+
+/** After a failed check: the first one of a scenario prints the log of the peer started
+ *  last (each request and reply, its time in the scenario), to tell a race from a bug. */
+void t_failed(void);
 
 /** Compare bytes with a hex string like "01 03 00 00" (spaces ignored). */
 #define CHECK_HEX(buf, len, hex) t_check_hex(__FILE__, __LINE__, (buf), (len), (hex))
@@ -58,6 +64,9 @@ typedef struct peer_reply {
     int delay_ms;             /* wait this long before writing     */
     int pace_us;              /* > 0: one byte, then this pause (a slow line) */
     int hold;                 /* wait for peer_release() (at most 10 s) before writing */
+    int until_input;          /* wait until the master sends again (at most 10 s), then
+                                 write: late, in the wait of the master's next frame,
+                                 with no timer between the two                      */
     int deaf;                 /* busy until this reply is out: requests that came in
                                  before it was written are discarded (a half-duplex
                                  device); what comes after it is heard             */
@@ -85,6 +94,8 @@ typedef struct peer {
     uint8_t raw[PEER_LOG][PEER_BUF];
     int raw_len[PEER_LOG];
     int64_t t_us[PEER_LOG];   /* time the request was complete                    */
+    int64_t t_reply_us[PEER_LOG]; /* time its reply was written (0: none)         */
+    int reply_len[PEER_LOG];  /* bytes of that reply                               */
     /* a tiny register bank for peer_answer(); slaves 0..7, registers 0..255 */
     uint16_t regs[8][256];
     int dead[256];            /* peer_answer stays silent for these slaves        */
@@ -108,6 +119,9 @@ int peer_start(peer_t *p, const char *link, int mode, peer_fn fn, void *user);
 /** Stop the thread, remove the link and close the pty (the shims' port is gone). */
 void peer_stop(peer_t *p);
 int peer_count(peer_t *p);
+/** The peer's count of requests once it has read `n` of them, at most 2 s: its thread may
+ *  lag behind requests that it leaves unanswered or that failed fast (e.g. on garbage). */
+int peer_count_reaching(peer_t *p, int n);
 long peer_bytes(peer_t *p);
 int peer_slave_count(peer_t *p, int slave);
 /** Copy request i as received; returns its length. */
@@ -174,7 +188,8 @@ typedef struct t_case {
  *  MBFB_TEST_ROTATE=k (set by tests/shims/CMakeLists.txt for the sanitizer flavours): each
  *  case runs in one framing only, case c in framing (c + k) mod 3, so every case and every
  *  framing still run under the sanitizer without repeating the long waits that the plain
- *  flavours run in full. */
+ *  flavours run in full. MBFB_TEST_CASE=text (by hand, to repeat one case): only the cases
+ *  whose "framing: name" contains text. */
 int t_serial_scenarios(const char *test, int *framing, const t_case_t *cases, int n);
 void t_sleep_ms(int ms);
 void t_sleep_us(long us);

@@ -26,6 +26,9 @@ const char *const fdc_ex1 =
 
 int t_failures;
 const char *t_scenario = "";
+static peer_t *last_peer;    /* the peer started last: its log is printed on a failure */
+static int64_t case_t0;      /* when the scenario began (t_serial_scenarios)            */
+static int case_no, dumped_case = -1;
 
 /* ---- assertions ------------------------------------------------------------ */
 int t_hex(const char *hex, uint8_t *out)
@@ -62,6 +65,28 @@ void t_check_hex(const char *file, int line, const uint8_t *buf, int len, const 
             fprintf(stderr, " %02X", buf[i]);
         fprintf(stderr, "\n  want: %s\n", hex);
     }
+}
+
+void t_failed(void)
+{
+    peer_t *p = last_peer;
+    if (p == NULL || dumped_case == case_no)
+        return;
+    dumped_case = case_no;
+    pthread_mutex_lock(&p->lock);
+    int64_t t0 = case_t0 ? case_t0 : p->t_us[0]; /* outside a scenario: the first request */
+    fprintf(stderr, "  the peer's log [%s], ms since the scenario began:\n", t_scenario);
+    for (int i = 0; i < p->n && i < PEER_LOG; i++) {
+        fprintf(stderr, "    #%d request at %8.1f:", i, (double)(p->t_us[i] - t0) / 1e3);
+        for (int k = 0; k < p->raw_len[i] && k < 8; k++)
+            fprintf(stderr, " %02X", p->raw[i][k]);
+        if (p->t_reply_us[i])
+            fprintf(stderr, "%s  reply of %d bytes at %8.1f\n", p->raw_len[i] > 8 ? " .." : "",
+                    p->reply_len[i], (double)(p->t_reply_us[i] - t0) / 1e3);
+        else
+            fprintf(stderr, "%s  no reply (yet)\n", p->raw_len[i] > 8 ? " .." : "");
+    }
+    pthread_mutex_unlock(&p->lock);
 }
 
 int t_done(const char *name)
@@ -293,7 +318,19 @@ static void *peer_main(void *arg)
         for (int i = 0; r.hold && i < 10000 && !__atomic_exchange_n(&p->released, 0,
                                                                     __ATOMIC_ACQ_REL); i++)
             t_sleep_ms(1);
+        for (int i = 0; r.until_input && i < 500 && !__atomic_load_n(&p->stop, __ATOMIC_ACQUIRE);
+             i++) { /* woken by the input itself: no polling delay a loaded machine stretches */
+            struct pollfd pf = {p->master, POLLIN, 0};
+            if (poll(&pf, 1, 20) > 0)
+                break;
+        }
         peer_write(p, &r);
+        if (r.len > 0 && n < PEER_LOG) {
+            pthread_mutex_lock(&p->lock);
+            p->t_reply_us[n] = t_now_us();
+            p->reply_len[n] = r.len;
+            pthread_mutex_unlock(&p->lock);
+        }
     }
     return NULL;
 }
@@ -318,6 +355,7 @@ int peer_start(peer_t *p, const char *link, int mode, peer_fn fn, void *user)
     p->fn = fn;
     p->user = user;
     pthread_mutex_init(&p->lock, NULL);
+    last_peer = p;
     return pthread_create(&p->th, NULL, peer_main, p) == 0 ? 0 : -1;
 }
 
@@ -408,6 +446,13 @@ int peer_count(peer_t *p)
     n = p->n;
     pthread_mutex_unlock(&p->lock);
     return n;
+}
+
+int peer_count_reaching(peer_t *p, int n)
+{
+    for (int64_t end = t_now_us() + 2000000; peer_count(p) < n && t_now_us() < end;)
+        t_sleep_ms(1);
+    return peer_count(p);
 }
 
 long peer_bytes(peer_t *p)
@@ -651,9 +696,13 @@ int t_serial_scenarios(const char *test, int *framing, const t_case_t *cases, in
     enum { NF = (int)(sizeof framings / sizeof framings[0]) };
     static char name[96];
     const char *rot = getenv("MBFB_TEST_ROTATE");
+    const char *only = getenv("MBFB_TEST_CASE");
     int rotate = rot != NULL && rot[0] != '\0';
     int k = rotate ? ((atoi(rot) % NF) + NF) % NF : 0;
 
+    if (only != NULL && only[0] != '\0')
+        printf("%s: MBFB_TEST_CASE=%s: only the cases whose \"framing: name\" holds it\n", test,
+               only);
     if (rotate)
         printf("%s: MBFB_TEST_ROTATE=%d: each case in one framing (every case and every "
                "framing run; the plain flavours run them all in every framing)\n", test, k);
@@ -664,8 +713,12 @@ int t_serial_scenarios(const char *test, int *framing, const t_case_t *cases, in
              * framing f also gets case (f + k) mod n so that every framing runs */
             if (rotate && (c + k) % NF != f && (n >= NF || (f + k) % n != c))
                 continue;
-            int64_t t0 = t_now_us();
             snprintf(name, sizeof name, "%s: %s", framings[f].name, cases[c].name);
+            if (only != NULL && only[0] != '\0' && strstr(name, only) == NULL)
+                continue;
+            int64_t t0 = t_now_us();
+            case_t0 = t0;
+            case_no++;
             t_scenario = name;
             cases[c].fn();
             printf("  %-60s %6.1f s\n", name, (double)(t_now_us() - t0) / 1e6);

@@ -14,6 +14,8 @@ import os
 import re
 import sys
 
+from generated import generate  # the command line of every generated file
+
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 DEFINE = re.compile(r"^#define\s+(MBFB_OK|MBFB_E_\w+)\s+(\d+)[ \t]*(?:/\*(.*?)\*/)?", re.M | re.S)
 HEAD = """# Error ids
@@ -42,7 +44,7 @@ def rows(header_text: str) -> list:
         else:
             out.append((value, name, meaning or ("no error" if name == "MBFB_OK" else "")))
     if len(out) < 10:
-        raise ValueError("fewer than 10 MBFB_E_* ids found")
+        raise ValueError("fewer than 10 MBFB_E_* ids found in the header")
     return out
 
 
@@ -56,25 +58,12 @@ def main(argv=None) -> int:
     p.add_argument("--out", default=os.path.join(ROOT, "docs", "errors.md"))
     p.add_argument("--check", metavar="FILE")
     a = p.parse_args(argv)
-    try:
+
+    def text():
         with open(a.header, encoding="utf-8") as fh:
-            text = render(fh.read())
-    except (OSError, ValueError) as err:
-        print(f"errors.py: {a.header}: {err}", file=sys.stderr)
-        return 2
-    if a.check:
-        try:
-            with open(a.check, encoding="utf-8") as fh:
-                same = fh.read() == text
-        except OSError as err:
-            print(f"errors.py: {a.check}: {err.strerror}", file=sys.stderr)
-            return 2
-        if not same:
-            print(f"errors.py: {a.check} is stale: run tools/stref/errors.py", file=sys.stderr)
-        return 0 if same else 1
-    with open(a.out, "w", encoding="utf-8") as fh:
-        fh.write(text)
-    return 0
+            return render(fh.read())
+    return generate("errors.py", text, (OSError, ValueError), out=a.out, check=a.check,
+                    hint="tools/stref/errors.py")
 
 
 if __name__ == "__main__":

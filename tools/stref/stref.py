@@ -16,11 +16,12 @@ Exit codes: 0 written / up to date, 1 stale (--check), 2 bad input (one line on 
 from __future__ import annotations
 
 import argparse
-import difflib
 import glob
 import os
 import re
 import sys
+
+from generated import generate  # the command line of every generated file
 
 ROOT = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 CORE = "MB_Device"
@@ -224,36 +225,14 @@ def main(argv=None):
     ap.add_argument("--out", help="write here (default: standard output)")
     ap.add_argument("--check", metavar="FILE", help="exit 1 if FILE differs from what would be written")
     args = ap.parse_args(argv)
-    try:
+
+    def text():
         paths = sorted(glob.glob(os.path.join(args.src, "*.st")))
         if not paths:
             raise InputError(f"{args.src}: no .st files")
-        text = render(parse_pous(paths), shim_errors(args.header))
-    except InputError as err:
-        print(f"stref: {err}", file=sys.stderr)
-        return 2
-    if args.check:
-        try:
-            with open(args.check, encoding="utf-8") as fh:
-                have = fh.read()
-        except OSError as err:
-            print(f"stref: {args.check}: {err.strerror}", file=sys.stderr)
-            return 1
-        if have != text:
-            diff = difflib.unified_diff(have.splitlines(), text.splitlines(), args.check,
-                                        "generated", lineterm="", n=1)
-            print("\n".join(list(diff)[:40]))
-            print(f"stref: {args.check} is stale: run the build target st_reference "
-                  "(or tools/stref/stref.py --out it)", file=sys.stderr)
-            return 1
-        print(f"stref: {args.check} is up to date")
-        return 0
-    if args.out:
-        with open(args.out, "w", encoding="utf-8") as fh:
-            fh.write(text)
-    else:
-        sys.stdout.write(text)
-    return 0
+        return render(parse_pous(paths), shim_errors(args.header))
+    return generate("stref", text, InputError, out=args.out, check=args.check,
+                    hint="the build target st_reference (or tools/stref/stref.py --out it)")
 
 
 if __name__ == "__main__":
