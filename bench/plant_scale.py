@@ -49,7 +49,8 @@ a scan with one - that)).
 
 Versions side by side (--variant NAME=REF, repeatable; REF a commit, exported with `git archive`
 and built as wire_pace.py's Variant does, or `worktree`; NAME=REF@N runs that arm's program at
-nice N, to show what the machine's load costs): the wire runs of the versions interleaved,
+nice N, NAME=REF@/M its lines (ptyline and the simulator) at nice M, NAME=REF@N/M both: what
+the machine's load costs, and whose CPU the share waits for): the wire runs of the versions interleaved,
 --rounds of each (A B A B ...), and one table of the shares and gaps of every run at the end.
 Every version runs on the same simulator (this tree's) and on the line model (ptyline) of the
 last version given.
@@ -221,14 +222,20 @@ def renice(pid: int, nice: int) -> None:
             pass
 
 
-def wire_run(exe: str, ptyline: str, tmp: str, devs, args, nice: int | None = None, keep: str | None = None) -> dict:
+def wire_run(exe: str, ptyline: str, tmp: str, devs, args, nice: tuple = (None, None),
+             keep: str | None = None) -> dict:
+    """nice: (the program's, the lines' (ptyline and the simulator)) nice values, None: as started."""
     lines = open_lines(ptyline, tmp, devs, args.lines, args.baud)
     try:
+        if nice[1] is not None:
+            for x in lines:
+                renice(x.proc.pid, nice[1])
+                renice(x.sim.proc.pid, nice[1])
         with Runner(exe) as plc:
             pid = plc.proc.pid
-            if nice is not None:
+            if nice[0] is not None:
                 time.sleep(1.0)                      # the workers are started
-                renice(pid, nice)
+                renice(pid, nice[0])
             time.sleep(args.warmup)
             s0, t0, c0, w0 = plc.snapshot(), [x.now_us() for x in lines], thread_cpu(pid), time.monotonic()
             time.sleep(args.seconds)
@@ -341,9 +348,9 @@ def main() -> int:
     ap.add_argument("--skip", default="", help="comma list of: wire,cost")
     ap.add_argument("--keep", metavar="DIR", help="keep the wire run's frame logs (ptyline's, per line) in DIR "
                     "(DIR/NAME-ROUND with --variant)")
-    ap.add_argument("--variant", action="append", metavar="NAME=REF[@NICE]",
+    ap.add_argument("--variant", action="append", metavar="NAME=REF[@PLC_NICE[/LINES_NICE]]",
                     help="a version side by side: a commit or 'worktree' (repeatable; default now=worktree); "
-                         "@NICE runs its program at that nice value")
+                         "@N runs its program at nice N, @/M its lines (ptyline, simulator) at nice M")
     ap.add_argument("--rounds", type=int, default=1, help="wire runs of each version, interleaved")
     ap.add_argument("--save", metavar="FILE", help="also keep the raw results (pickle) in FILE")
     ap.add_argument("--from", dest="saved", metavar="FILE", help="only the report again, from a --save FILE")
@@ -385,8 +392,8 @@ def main() -> int:
         if "wire" not in skip:
             for r in range(args.rounds):
                 for name, ref, nice in variants:
-                    wp.log(f"wire run {r + 1}/{args.rounds}, {name} ({ref}"
-                           f"{'' if nice is None else f', nice {nice}'}): {args.warmup:g} s + {args.seconds:g} s ...")
+                    wp.log(f"wire run {r + 1}/{args.rounds}, {name} ({ref}{nice_text(nice)}): "
+                           f"{args.warmup:g} s + {args.seconds:g} s ...")
                     keep = os.path.join(args.keep, f"{name}-{r + 1}") if args.keep and len(variants) * args.rounds > 1 \
                         else args.keep
                     w = wire_run(exes[ref], ptyline, tmp, devs, args, nice, keep)
@@ -416,17 +423,25 @@ def main() -> int:
     return 0
 
 
-def parse_variants(specs: list[str]) -> list[tuple[str, str, int | None]]:
-    """--variant NAME=REF[@NICE] -> [(name, ref, nice or None)]."""
+def parse_variants(specs: list[str]) -> list[tuple[str, str, tuple]]:
+    """--variant NAME=REF[@PLC_NICE[/LINES_NICE]] -> [(name, ref, (plc nice, lines' nice))], None: as started."""
     out = []
     for spec in specs:
         name, _, rest = spec.partition("=")
         ref, _, nice = rest.partition("@")
-        if not name.isidentifier() or not ref or (nice and not re.fullmatch(r"-?\d+", nice)) \
-                or name in (n for n, *_ in out):
-            raise SystemExit(f"--variant wants NAME=REF or NAME=REF@NICE (distinct names), not '{spec}'")
-        out.append((name, ref, int(nice) if nice else None))
+        m = re.fullmatch(r"(-?\d+)?(?:/(-?\d+))?", nice)
+        if not name.isidentifier() or not ref or not m or name in (n for n, *_ in out):
+            raise SystemExit(f"--variant wants NAME=REF, NAME=REF@PLC_NICE, NAME=REF@PLC_NICE/LINES_NICE or "
+                             f"NAME=REF@/LINES_NICE (distinct names), not '{spec}'")
+        out.append((name, ref, tuple(None if g is None else int(g) for g in m.groups())))
     return out
+
+
+def nice_text(nice) -> str:
+    if not isinstance(nice, tuple):
+        nice = (nice, None)                  # a --save file of the first form (@N only)
+    parts = [f"{what} at nice {n}" for what, n in zip(("program", "lines"), nice) if n is not None]
+    return ", " + ", ".join(parts) if parts else ""
 
 
 def num(x: float) -> str:
@@ -472,7 +487,7 @@ def report_runs(res, devs, args) -> None:
             worst = max(worst, max(abs(x / fair - 1) for x in c) if fair else float("inf"))
         rng = lambda xs, f: f"{f(min(xs))} to {f(max(xs))}"  # noqa: E731
         shares = " / ".join(f"{x['share']:.3f}" for x in w["lines"])
-        print(f"| {name} ({ref}{'' if nice is None else f', nice {nice}'}) | {r} | {w.get('at', '')} | "
+        print(f"| {name} ({ref}{nice_text(nice)}) | {r} | {w.get('at', '')} | "
               f"{w['load'][0]:.1f} | {shares} | "
               f"{rng([x['gap_ms'] for x in w['lines']], lambda v: f'{v:.2f}')} | "
               f"{rng([g['mean_ms'] for g in w['gaps']], lambda v: f'{v:.2f}')} | "
