@@ -36,7 +36,6 @@ import signal
 import statistics
 import subprocess
 import sys
-import tempfile
 import time
 
 HERE = os.path.dirname(os.path.abspath(__file__))
@@ -125,11 +124,7 @@ def main() -> int:
         raise SystemExit("bad arguments: see --help (at most 247 devices; baud 2400..19200; times > 0)")
     if not shutil.which("perf"):
         raise SystemExit("perf not found (Debian package linux-perf)")
-    tmp = tempfile.mkdtemp(prefix="gaptrace-")
-    old_tmpdir = os.environ.get("TMPDIR")
-    os.environ["TMPDIR"] = tmp
-    tempfile.tempdir = tmp
-    try:
+    with wp.temp_root("gaptrace-") as tmp:      # the simulators' temp dirs too
         devs = ps.plant(args.lines, args.per_line)
         ports = [os.path.join(tmp, f"line{L}") for L in range(args.lines)]
         v = wp.Variant("v", args.ref, tmp, "Debug")
@@ -172,13 +167,6 @@ def main() -> int:
             late = g["mean_ms"] - statistics.mean(s["p_to_q"]) if s["p_to_q"] and g else float("nan")
             print(f"| {L} | {len(s['worker'])} | {fig(s['worker'])} | {fig(s['delivery'])} | {fig(s['p_to_q'])} | "
                   f"{g['mean_ms']:.2f} ({f['gap_ms']:.2f}) | {late:.2f} | {f['share']:.3f} |")
-    finally:
-        tempfile.tempdir = None
-        if old_tmpdir is None:
-            os.environ.pop("TMPDIR", None)
-        else:
-            os.environ["TMPDIR"] = old_tmpdir
-        shutil.rmtree(tmp, ignore_errors=True)
     return 0
 
 

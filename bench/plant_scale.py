@@ -370,12 +370,8 @@ def main() -> int:
                          "--skip from wire,cost; times and counts > 0)")
     if "cost" not in skip and not shutil.which("valgrind"):
         raise SystemExit("valgrind not found (Debian package valgrind), or --skip cost")
-    tmp = tempfile.mkdtemp(prefix="plantscale-")
-    old_tmpdir = os.environ.get("TMPDIR")
-    os.environ["TMPDIR"] = tmp               # the simulators' and the runner's temp dirs too
-    tempfile.tempdir = tmp
     started = time.monotonic()
-    try:
+    with wp.temp_root("plantscale-") as tmp:      # the simulators' temp dirs too
         devs = plant(args.lines, args.per_line)
         ports = [os.path.join(tmp, f"line{L}") for L in range(args.lines)]
         built, exes = {}, {}
@@ -412,13 +408,6 @@ def main() -> int:
             with open(args.save, "wb") as fh:
                 pickle.dump((res, args), fh)
         report(res, devs, args)
-    finally:
-        tempfile.tempdir = None
-        if old_tmpdir is None:
-            os.environ.pop("TMPDIR", None)
-        else:
-            os.environ["TMPDIR"] = old_tmpdir
-        shutil.rmtree(tmp, ignore_errors=True)
     wp.log(f"total {time.monotonic() - started:.0f} s")
     return 0
 
