@@ -27,17 +27,17 @@ import glob
 import os
 import re
 import shlex
-import shutil
 import signal
 import statistics as st
 import subprocess
 import sys
-import tempfile
 import time
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, os.path.join(ROOT, "tools", "sim"))
 from simctl import Simulator  # noqa: E402
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import wire_pace as wp  # noqa: E402
 
 PERIOD_MS = 500
 DEFAULT_BEFORE = "99d66d9^"
@@ -192,11 +192,7 @@ def main() -> int:
     if not os.path.exists(os.path.join(home, "webserver", "iec2c")):
         raise SystemExit(f"no iec2c in {home}/webserver (set OPENPLC_HOME)")
     delays = [int(d) for d in args.delays.split(",")]
-    tmp = tempfile.mkdtemp(prefix="block-blind-")
-    old_tmpdir = os.environ.get("TMPDIR")
-    os.environ["TMPDIR"] = tmp            # the simulators' temp dirs too
-    tempfile.tempdir = tmp
-    try:
+    with wp.temp_root("block-blind-") as tmp:      # the simulators' temp dirs too
         before_src = os.path.join(tmp, "before-src")
         os.makedirs(before_src)
         archive = subprocess.run(["git", "-C", ROOT, "archive", args.before, "st_src", "c_shims"],
@@ -229,13 +225,6 @@ def main() -> int:
         print(f"load average at the end {os.getloadavg()[0]:.2f} {os.getloadavg()[1]:.2f} "
               f"{os.getloadavg()[2]:.2f}")
         table(raw)
-    finally:
-        tempfile.tempdir = None
-        if old_tmpdir is None:
-            os.environ.pop("TMPDIR", None)
-        else:
-            os.environ["TMPDIR"] = old_tmpdir
-        shutil.rmtree(tmp, ignore_errors=True)
     return 0
 
 

@@ -2,6 +2,8 @@
 
     .venv/bin/python bench/plant_scale.py                    # wire run + scan cost: ~10 min here
     .venv/bin/python bench/plant_scale.py --skip cost        # the wire run only: ~3 min
+    .venv/bin/python bench/plant_scale.py --skip cost --variant before=e75bb47 --variant now=worktree --rounds 3
+                                                             # two versions side by side, wire runs interleaved
     .venv/bin/python bench/plant_scale.py --help             # --lines 4 --per-line 16 --baud 19200 ...
 
 Not a test: it prints figures (bench/README.md, "Scale: a plant of 4 lines x 16 instruments").
@@ -44,6 +46,14 @@ the scans in which no block published, against sum over the blocks of their cost
 Refreshes back to back: each scan against its prediction from the blocks alone with Period
 T#0s (per kind: n x the cost of a scan without a refresh + the scan's refreshes x (the cost of
 a scan with one - that)).
+
+Versions side by side (--variant NAME=REF, repeatable; REF a commit, exported with `git archive`
+and built as wire_pace.py's Variant does, or `worktree`; NAME=REF@N runs that arm's program at
+nice N, NAME=REF@/M its lines (ptyline and the simulator) at nice M, NAME=REF@N/M both: what
+the machine's load costs, and whose CPU the share waits for): the wire runs of the versions interleaved,
+--rounds of each (A B A B ...), and one table of the shares and gaps of every run at the end.
+Every version runs on the same simulator (this tree's) and on the line model (ptyline) of the
+last version given.
 
 Everything is on ptys, every process is stopped by pid, the temp dir (under $TMPDIR) is removed.
 Needs what bench/wire_pace.py needs (cmake, ninja, gcc/g++, OpenPLC v3's iec2c, the venv) and
@@ -203,11 +213,29 @@ def line_gaps(line: PlantLine, t0: float, t1: float) -> dict:
             "max_ms": gaps[-1] / 1000, "min_ms": gaps[0] / 1000} if gaps else {}
 
 
-def wire_run(exe: str, ptyline: str, tmp: str, devs, args) -> dict:
+def renice(pid: int, nice: int) -> None:
+    """Every thread of pid at nice `nice` (the bus workers start in the first scan: call after)."""
+    for d in glob.glob(f"/proc/{pid}/task/*"):
+        try:
+            os.setpriority(os.PRIO_PROCESS, int(os.path.basename(d)), nice)
+        except OSError:
+            pass
+
+
+def wire_run(exe: str, ptyline: str, tmp: str, devs, args, nice: tuple = (None, None),
+             keep: str | None = None) -> dict:
+    """nice: (the program's, the lines' (ptyline and the simulator)) nice values, None: as started."""
     lines = open_lines(ptyline, tmp, devs, args.lines, args.baud)
     try:
+        if nice[1] is not None:
+            for x in lines:
+                renice(x.proc.pid, nice[1])
+                renice(x.sim.proc.pid, nice[1])
         with Runner(exe) as plc:
             pid = plc.proc.pid
+            if nice[0] is not None:
+                time.sleep(1.0)                      # the workers are started
+                renice(pid, nice[0])
             time.sleep(args.warmup)
             s0, t0, c0, w0 = plc.snapshot(), [x.now_us() for x in lines], thread_cpu(pid), time.monotonic()
             time.sleep(args.seconds)
@@ -215,10 +243,10 @@ def wire_run(exe: str, ptyline: str, tmp: str, devs, args) -> dict:
         figs = [x.figures(a, b) for x, a, b in zip(lines, t0, t1)]
         wire = [per_device_wire(x, a, b) for x, a, b in zip(lines, t0, t1)]
         gaps = [dict(line_gaps(x, a, b), collisions=x.collisions(a, b)) for x, a, b in zip(lines, t0, t1)]
-        if args.keep:
-            os.makedirs(args.keep, exist_ok=True)
+        if keep:
+            os.makedirs(keep, exist_ok=True)
             for L, x in enumerate(lines):
-                with open(os.path.join(args.keep, f"line{L}.frames"), "w", encoding="utf-8") as fh:
+                with open(os.path.join(keep, f"line{L}.frames"), "w", encoding="utf-8") as fh:
                     fh.write(f"# window {t0[L]:.0f} .. {t1[L]:.0f} us (line time)\n")
                     fh.write(open(x.logf, encoding="utf-8").read())
     finally:
@@ -237,7 +265,7 @@ def wire_run(exe: str, ptyline: str, tmp: str, devs, args) -> dict:
             "cpu_stat": [(c1[t][0] - c0[t][0]) / tck / wall for t in workers],
             "cpu_ns": [(c1[t][1] - c0[t][1]) / 1e9 / wall for t in workers],
             "scan_cpu_ns": (c1[pid][1] - c0[pid][1]) / 1e9 / wall,
-            "load": os.getloadavg()}
+            "load": os.getloadavg(), "nice": nice, "at": time.strftime("%H:%M:%S", time.gmtime())}
 
 
 # ---- the scan cost -----------------------------------------------------------------------------
@@ -300,7 +328,12 @@ def main() -> int:
     ap.add_argument("--skip-scans", type=int, default=250, help="the plant's first scans left out")
     ap.add_argument("--alone-skip-scans", type=int, default=50, help="a block alone: first scans left out")
     ap.add_argument("--skip", default="", help="comma list of: wire,cost")
-    ap.add_argument("--keep", metavar="DIR", help="keep the wire run's frame logs (ptyline's, per line) in DIR")
+    ap.add_argument("--keep", metavar="DIR", help="keep the wire run's frame logs (ptyline's, per line) in DIR "
+                    "(DIR/NAME-ROUND with --variant)")
+    ap.add_argument("--variant", action="append", metavar="NAME=REF[@PLC_NICE[/LINES_NICE]]",
+                    help="a version side by side: a commit or 'worktree' (repeatable; default now=worktree); "
+                         "@N runs its program at nice N, @/M its lines (ptyline, simulator) at nice M")
+    ap.add_argument("--rounds", type=int, default=1, help="wire runs of each version, interleaved")
     ap.add_argument("--save", metavar="FILE", help="also keep the raw results (pickle) in FILE")
     ap.add_argument("--from", dest="saved", metavar="FILE", help="only the report again, from a --save FILE")
     args = ap.parse_args()
@@ -310,29 +343,40 @@ def main() -> int:
         report(res, plant(saved_args.lines, saved_args.per_line), saved_args)
         return 0
     skip = set(filter(None, args.skip.split(",")))
+    variants = parse_variants(args.variant or ["now=worktree"])
     if skip - {"wire", "cost"} or not (1 <= args.lines <= 16 and 1 <= args.per_line
                                        and args.lines * args.per_line <= 247) \
             or args.baud not in (2400, 4800, 9600, 19200) or min(args.task_ms, args.seconds, args.scans) <= 0 \
-            or args.warmup < 0 or args.skip_scans < 0 or args.alone_skip_scans < 0:
+            or args.warmup < 0 or args.skip_scans < 0 or args.alone_skip_scans < 0 or args.rounds < 1:
         raise SystemExit("bad arguments: see --help (at most 247 devices; baud 2400..19200; "
                          "--skip from wire,cost; times and counts > 0)")
     if "cost" not in skip and not shutil.which("valgrind"):
         raise SystemExit("valgrind not found (Debian package valgrind), or --skip cost")
-    tmp = tempfile.mkdtemp(prefix="plantscale-")
-    old_tmpdir = os.environ.get("TMPDIR")
-    os.environ["TMPDIR"] = tmp               # the simulators' and the runner's temp dirs too
-    tempfile.tempdir = tmp
     started = time.monotonic()
-    try:
+    with wp.temp_root("plantscale-") as tmp:      # the simulators' temp dirs too
         devs = plant(args.lines, args.per_line)
         ports = [os.path.join(tmp, f"line{L}") for L in range(args.lines)]
-        v = wp.Variant("now", "worktree", tmp, "Debug")
-        wp.log("compiling the plant program (iec2c, g++ -O0, the runner) ...")
-        exe0 = compile_runner(v, "t0", plant_program(ports, devs, args.baud, "T#0s", args.task_ms))
-        res = {"load0": os.getloadavg(), "start": time.strftime("%H:%M", time.gmtime())}
+        built, exes = {}, {}
+        for name, ref, _ in variants:
+            if ref not in built:
+                built[ref] = wp.Variant(f"v{len(built)}", ref, tmp, "Debug")
+                wp.log(f"[{ref}] compiling the plant program (iec2c, g++ -O0, the runner) ...")
+                exes[ref] = compile_runner(built[ref], "t0", plant_program(ports, devs, args.baud, "T#0s",
+                                                                           args.task_ms))
+        ptyline = built[variants[-1][1]].ptyline          # one line model for every version
+        v, exe0 = built[variants[0][1]], exes[variants[0][1]]
+        res = {"load0": os.getloadavg(), "start": time.strftime("%H:%M", time.gmtime()),
+               "variants": variants, "runs": []}
         if "wire" not in skip:
-            wp.log(f"wire run: {args.warmup:g} s + {args.seconds:g} s ...")
-            res["wire"] = wire_run(exe0, v.ptyline, tmp, devs, args)
+            for r in range(args.rounds):
+                for name, ref, nice in variants:
+                    wp.log(f"wire run {r + 1}/{args.rounds}, {name} ({ref}{nice_text(nice)}): "
+                           f"{args.warmup:g} s + {args.seconds:g} s ...")
+                    keep = os.path.join(args.keep, f"{name}-{r + 1}") if args.keep and len(variants) * args.rounds > 1 \
+                        else args.keep
+                    w = wire_run(exes[ref], ptyline, tmp, devs, args, nice, keep)
+                    res["runs"].append((name, r + 1, w))
+            res["wire"] = res["runs"][-1][2] if len(res["runs"]) == 1 else None
         if "cost" not in skip:
             exe30 = compile_runner(v, "t30", plant_program(ports, devs, args.baud, "T#30s", args.task_ms))
             for mode, period, exe in (("steady", "T#30s", exe30), ("back to back", "T#0s", exe0)):
@@ -346,15 +390,29 @@ def main() -> int:
             with open(args.save, "wb") as fh:
                 pickle.dump((res, args), fh)
         report(res, devs, args)
-    finally:
-        tempfile.tempdir = None
-        if old_tmpdir is None:
-            os.environ.pop("TMPDIR", None)
-        else:
-            os.environ["TMPDIR"] = old_tmpdir
-        shutil.rmtree(tmp, ignore_errors=True)
     wp.log(f"total {time.monotonic() - started:.0f} s")
     return 0
+
+
+def parse_variants(specs: list[str]) -> list[tuple[str, str, tuple]]:
+    """--variant NAME=REF[@PLC_NICE[/LINES_NICE]] -> [(name, ref, (plc nice, lines' nice))], None: as started."""
+    out = []
+    for spec in specs:
+        name, _, rest = spec.partition("=")
+        ref, _, nice = rest.partition("@")
+        m = re.fullmatch(r"(-?\d+)?(?:/(-?\d+))?", nice)
+        if not name.isidentifier() or not ref or not m or name in (n for n, *_ in out):
+            raise SystemExit(f"--variant wants NAME=REF, NAME=REF@PLC_NICE, NAME=REF@PLC_NICE/LINES_NICE or "
+                             f"NAME=REF@/LINES_NICE (distinct names), not '{spec}'")
+        out.append((name, ref, tuple(None if g is None else int(g) for g in m.groups())))
+    return out
+
+
+def nice_text(nice) -> str:
+    if not isinstance(nice, tuple):
+        nice = (nice, None)                  # a --save file of the first form (@N only)
+    parts = [f"{what} at nice {n}" for what, n in zip(("program", "lines"), nice) if n is not None]
+    return ", " + ", ".join(parts) if parts else ""
 
 
 def num(x: float) -> str:
@@ -376,99 +434,147 @@ def report(res, devs, args) -> None:
           f"load average {' '.join(f'{x:.2f}' for x in res['load0'])} at the start, "
           f"{' '.join(f'{x:.2f}' for x in res['load1'])} at the end; {os.cpu_count()} CPUs\n")
     kinds = {s: b for b, _, s in KINDS}
-    if "wire" in res:
-        w = res["wire"]
-        win = w["window"]
-        print(f"## Wire run: Period T#0s, window {w['wall']:.1f} s wall = {w['scans']} scans "
-              f"({win:.1f} s of task time) after {args.warmup:g} s; wire load average at the end "
-              f"{' '.join(f'{x:.2f}' for x in w['load'])}\n")
-        print("| line | devices MV-D94 / FDC / MT-S9 | share of the wire | tx/s | requests < t3.5 / unanswered / collided entries | gap ms min / median / mean / p99 / max | "
-              "refreshes/s (line) | per device min / median / max | worst device vs fair share | "
-              "never refreshed | worker CPU % (stat) | worker CPU % (schedstat) |")
-        print("|---" * 12 + "|")
-        worst_all = 0.0
-        for L in range(args.lines):
-            idx = [n for n, d in enumerate(devs) if d[0] == L]
-            c = [w["counts"][n] for n in idx]
-            fair = sum(c) / len(c)
-            dev = max(abs(x / fair - 1) for x in c) if fair else float("inf")
-            worst_all = max(worst_all, dev)
-            mix = [sum(1 for n in idx if devs[n][1] == k) for k in range(len(KINDS))]
-            f, g = w["lines"][L], w["gaps"][L]
-            print(f"| {L} | {' / '.join(map(str, mix))} | **{f['share']:.3f}** | {f['tx']:.1f} | {g['short']} / {g['unanswered']} of {g['requests']} / {g['collisions']} | "
-                  f"{g['min_ms']:.2f} / {f['gap_ms']:.2f} / {g['mean_ms']:.2f} / {g['p99_ms']:.1f} / {g['max_ms']:.1f} | "
-                  f"{sum(c) / win:.2f} | {min(c) / win:.3f} / {statistics.median(c) / win:.3f} / "
-                  f"{max(c) / win:.3f} | **±{dev:.1%}** | {sum(1 for x in c if x == 0)} | "
-                  f"{100 * w['cpu_stat'][L]:.2f} | {100 * w['cpu_ns'][L]:.2f} |")
-        print(f"\nScan thread CPU (schedstat): {100 * w['scan_cpu_ns']:.1f} % of a core. Worst device of the "
-              f"plant against its line's fair share: ±{worst_all:.1%}.\n")
-        print("| line | slave | block | refreshes | refreshes/s | vs fair share | requests/s | bus share |")
-        print("|---|---|---|---|---|---|---|---|")
-        for L in range(args.lines):
-            idx = [n for n, d in enumerate(devs) if d[0] == L]
-            fair = sum(w["counts"][n] for n in idx) / len(idx)
-            for n in idx:
-                _, k, slave = devs[n]
-                req, us = w["wire"][L].get(slave & 0xFF, (0, 0.0))
-                print(f"| {L} | {slave} | {KINDS[k][0]} | {w['counts'][n]} | {w['counts'][n] / win:.3f} | "
-                      f"{w['counts'][n] / fair - 1:+.1%} | {req / w['wall']:.2f} | {us / 1e6 / w['wall']:.3f} |")
+    if res.get("wire"):
+        report_wire(res["wire"], devs, args)
+    elif res.get("runs"):
+        report_runs(res, devs, args)
     if ("plant", "steady") in res:
-        print(f"\n## Scan cost (callgrind, Ir per scan; program and shims at -O0; {args.scans} scans after "
-              f"{args.skip_scans}; blocks alone: {args.scans} after {args.alone_skip_scans})\n")
-        n_of = {s: sum(1 for d in devs if KINDS[d[1]][2] == s) for s in kinds}
-        scans = res[("plant", "steady")]
-        quiet = [s for s in scans if not any(s["pub"].values())]
-        alone = res[("alone", "steady")]
-        print(f"Steady (Period T#30s): {len(quiet)} of {len(scans)} measured scans without a refresh; means "
-              f"over those.\n")
-        print("| block | in the program | Ir per call in the program | alone (scan_cost.measure) | "
-              "program / alone |")
-        print("|---|---|---|---|---|")
-        tot_in, tot_alone = 0.0, 0.0
-        for s, b in kinds.items():
-            ir = statistics.mean(q["ir"][s] for q in quiet) if quiet else float("nan")
-            calls = statistics.mean(q["calls"][s] for q in quiet) if quiet else float("nan")
-            a = alone[s]["body"]
-            tot_in += ir
-            tot_alone += n_of[s] * a
-            print(f"| `{b}` x {n_of[s]} ({calls:.0f} calls/scan) | {num(ir)} | {num(ir / calls)} | {num(a)} | "
-                  f"{ir / calls / a:.3f} |")
-        prog = statistics.mean(q["prog"] for q in quiet) if quiet else float("nan")
-        print(f"| all blocks | {num(tot_in)} | | {num(tot_alone)} (sum) | {tot_in / tot_alone:.3f} |")
-        print(f"| whole program (`MAIN_body__`: blocks + counters) | {num(prog)} | | | {prog / tot_alone:.3f} |")
-        shares = ", ".join(f"{s} {alone[s]['pub']:.1%}" for s in kinds)
-        print(f"\nAlone, steady: pick-up share {shares}; most in one program scan "
-              f"{num(max(q['prog'] for q in quiet) if quiet else 0)} Ir.")
-        scans = res[("plant", "back to back")]
-        ab = res[("alone", "back to back")]
-        print(f"\nRefreshes back to back (Period T#0s): {len(scans)} scans; a block's cost per call in the "
-              f"program against two predictions from the same block alone with Period T#0s (A: steady + the "
-              f"refreshes x the alone mean's extra per refresh; B: the alone scans without a refresh + the "
-              f"refreshes x (a pick-up scan - those))\n")
-        print("| block | refreshes per block per scan | in the program, Ir per call | alone: mean per scan | "
-              "pick-up scans | Ir in them | in the others | prediction A | prediction B |")
-        print("|---|---|---|---|---|---|---|---|---|")
-        tot = {"m": 0.0, "a": 0.0, "b": 0.0}
-        waits = []
-        for s, b in kinds.items():
-            r = ab[s]
-            pick = r["body_pub"] if r["body_pub"] is not None else r["body"]
-            other = (r["body"] - r["pub"] * pick) / (1 - r["pub"]) if r["pub"] < 1 else alone[s]["body"]
-            per = statistics.mean(q["pub"][s] for q in scans) / n_of[s]          # refreshes per block per scan
-            m = statistics.mean(q["ir"][s] for q in scans) / n_of[s]
-            idle = [q["ir"][s] / n_of[s] for q in scans if not q["pub"][s]]
-            waits.append(f"{s} {num(statistics.mean(idle)) if idle else '-'} ({len(idle)} scans)")
-            a = alone[s]["body"] + per * ((r["body"] - alone[s]["body"]) / r["pub"] if r["pub"] else 0.0)
-            bb = other + per * (pick - other)
-            for k, x in (("m", m), ("a", a), ("b", bb)):
-                tot[k] += n_of[s] * x
-            print(f"| `{b}` | {per:.4f} | {num(m)} | {num(r['body'])} | {r['pub']:.0%} | {num(pick)} | {num(other)} | "
-                  f"{num(a)} | {num(bb)} |")
-        print(f"| all blocks, per scan | | {num(tot['m'])} | | | | | {num(tot['a'])} ({tot['m'] / tot['a']:.3f}) | "
-              f"{num(tot['b'])} ({tot['m'] / tot['b']:.3f}) |")
-        print(f"\nIn the program's scans in which no block of that kind refreshed, Ir per call: {', '.join(waits)}.")
-        print(f"Whole program (`MAIN_body__`) per scan: mean {num(statistics.mean(q['prog'] for q in scans))}, "
-              f"max {num(max(q['prog'] for q in scans))}.")
+        report_cost(res, devs, args, kinds)
+
+
+def report_runs(res, devs, args) -> None:
+    """Versions side by side: one line per run, then each run's line table."""
+    refs = {n: (r, nice) for n, r, nice in res["variants"]}
+    print("## Wire runs side by side (Period T#0s; in the order run)\n")
+    print("| version | round | at (UTC) | load at the end | share of the wire, lines 0..3 | gap ms median | "
+          "gap ms mean | gap ms p99 | tx/s per line | worker CPU % (schedstat) | worst device vs fair share |")
+    print("|---" * 11 + "|")
+    for name, r, w in res["runs"]:
+        ref, nice = refs[name]
+        worst = 0.0
+        for L in range(args.lines):
+            c = [w["counts"][n] for n, d in enumerate(devs) if d[0] == L]
+            fair = sum(c) / len(c)
+            worst = max(worst, max(abs(x / fair - 1) for x in c) if fair else float("inf"))
+        rng = lambda xs, f: f"{f(min(xs))} to {f(max(xs))}"  # noqa: E731
+        shares = " / ".join(f"{x['share']:.3f}" for x in w["lines"])
+        print(f"| {name} ({ref}{nice_text(nice)}) | {r} | {w.get('at', '')} | "
+              f"{w['load'][0]:.1f} | {shares} | "
+              f"{rng([x['gap_ms'] for x in w['lines']], lambda v: f'{v:.2f}')} | "
+              f"{rng([g['mean_ms'] for g in w['gaps']], lambda v: f'{v:.2f}')} | "
+              f"{rng([g['p99_ms'] for g in w['gaps']], lambda v: f'{v:.1f}')} | "
+              f"{rng([x['tx'] for x in w['lines']], lambda v: f'{v:.1f}')} | "
+              f"{rng([100 * x for x in w['cpu_ns']], lambda v: f'{v:.2f}')} | ±{worst:.1%} |")
+    print()
+    for name, (ref, nice) in refs.items():
+        runs = [w for n, _, w in res["runs"] if n == name]
+        share = [statistics.mean(x["share"] for x in w["lines"]) for w in runs]
+        excess = [statistics.mean(g["mean_ms"] for g in w["gaps"]) for w in runs]
+        print(f"* {name}: share of the wire, mean of the lines, median over {len(runs)} runs "
+              f"**{statistics.median(share):.3f}** (runs {min(share):.3f} to {max(share):.3f}); mean gap "
+              f"{statistics.median(excess):.2f} ms (runs {min(excess):.2f} to {max(excess):.2f})")
+    print()
+    for name, r, w in res["runs"]:
+        print(f"### {name}, round {r}\n")
+        report_wire(w, devs, args, per_device=False)
+
+
+def report_wire(w, devs, args, per_device: bool = True) -> None:
+    win = w["window"]
+    print(f"## Wire run: Period T#0s, window {w['wall']:.1f} s wall = {w['scans']} scans "
+          f"({win:.1f} s of task time) after {args.warmup:g} s; wire load average at the end "
+          f"{' '.join(f'{x:.2f}' for x in w['load'])}\n")
+    print("| line | devices MV-D94 / FDC / MT-S9 | share of the wire | tx/s | requests < t3.5 / unanswered / collided entries | gap ms min / median / mean / p99 / max | "
+          "refreshes/s (line) | per device min / median / max | worst device vs fair share | "
+          "never refreshed | worker CPU % (stat) | worker CPU % (schedstat) |")
+    print("|---" * 12 + "|")
+    worst_all = 0.0
+    for L in range(args.lines):
+        idx = [n for n, d in enumerate(devs) if d[0] == L]
+        c = [w["counts"][n] for n in idx]
+        fair = sum(c) / len(c)
+        dev = max(abs(x / fair - 1) for x in c) if fair else float("inf")
+        worst_all = max(worst_all, dev)
+        mix = [sum(1 for n in idx if devs[n][1] == k) for k in range(len(KINDS))]
+        f, g = w["lines"][L], w["gaps"][L]
+        print(f"| {L} | {' / '.join(map(str, mix))} | **{f['share']:.3f}** | {f['tx']:.1f} | {g['short']} / {g['unanswered']} of {g['requests']} / {g['collisions']} | "
+              f"{g['min_ms']:.2f} / {f['gap_ms']:.2f} / {g['mean_ms']:.2f} / {g['p99_ms']:.1f} / {g['max_ms']:.1f} | "
+              f"{sum(c) / win:.2f} | {min(c) / win:.3f} / {statistics.median(c) / win:.3f} / "
+              f"{max(c) / win:.3f} | **±{dev:.1%}** | {sum(1 for x in c if x == 0)} | "
+              f"{100 * w['cpu_stat'][L]:.2f} | {100 * w['cpu_ns'][L]:.2f} |")
+    print(f"\nScan thread CPU (schedstat): {100 * w['scan_cpu_ns']:.1f} % of a core. Worst device of the "
+          f"plant against its line's fair share: ±{worst_all:.1%}.\n")
+    if not per_device:
+        return
+    print("| line | slave | block | refreshes | refreshes/s | vs fair share | requests/s | bus share |")
+    print("|---|---|---|---|---|---|---|---|")
+    for L in range(args.lines):
+        idx = [n for n, d in enumerate(devs) if d[0] == L]
+        fair = sum(w["counts"][n] for n in idx) / len(idx)
+        for n in idx:
+            _, k, slave = devs[n]
+            req, us = w["wire"][L].get(slave & 0xFF, (0, 0.0))
+            print(f"| {L} | {slave} | {KINDS[k][0]} | {w['counts'][n]} | {w['counts'][n] / win:.3f} | "
+                  f"{w['counts'][n] / fair - 1:+.1%} | {req / w['wall']:.2f} | {us / 1e6 / w['wall']:.3f} |")
+
+
+def report_cost(res, devs, args, kinds) -> None:
+    print(f"\n## Scan cost (callgrind, Ir per scan; program and shims at -O0; {args.scans} scans after "
+          f"{args.skip_scans}; blocks alone: {args.scans} after {args.alone_skip_scans})\n")
+    n_of = {s: sum(1 for d in devs if KINDS[d[1]][2] == s) for s in kinds}
+    scans = res[("plant", "steady")]
+    quiet = [s for s in scans if not any(s["pub"].values())]
+    alone = res[("alone", "steady")]
+    print(f"Steady (Period T#30s): {len(quiet)} of {len(scans)} measured scans without a refresh; means "
+          f"over those.\n")
+    print("| block | in the program | Ir per call in the program | alone (scan_cost.measure) | "
+          "program / alone |")
+    print("|---|---|---|---|---|")
+    tot_in, tot_alone = 0.0, 0.0
+    for s, b in kinds.items():
+        ir = statistics.mean(q["ir"][s] for q in quiet) if quiet else float("nan")
+        calls = statistics.mean(q["calls"][s] for q in quiet) if quiet else float("nan")
+        a = alone[s]["body"]
+        tot_in += ir
+        tot_alone += n_of[s] * a
+        print(f"| `{b}` x {n_of[s]} ({calls:.0f} calls/scan) | {num(ir)} | {num(ir / calls)} | {num(a)} | "
+              f"{ir / calls / a:.3f} |")
+    prog = statistics.mean(q["prog"] for q in quiet) if quiet else float("nan")
+    print(f"| all blocks | {num(tot_in)} | | {num(tot_alone)} (sum) | {tot_in / tot_alone:.3f} |")
+    print(f"| whole program (`MAIN_body__`: blocks + counters) | {num(prog)} | | | {prog / tot_alone:.3f} |")
+    shares = ", ".join(f"{s} {alone[s]['pub']:.1%}" for s in kinds)
+    print(f"\nAlone, steady: pick-up share {shares}; most in one program scan "
+          f"{num(max(q['prog'] for q in quiet) if quiet else 0)} Ir.")
+    scans = res[("plant", "back to back")]
+    ab = res[("alone", "back to back")]
+    print(f"\nRefreshes back to back (Period T#0s): {len(scans)} scans; a block's cost per call in the "
+          f"program against two predictions from the same block alone with Period T#0s (A: steady + the "
+          f"refreshes x the alone mean's extra per refresh; B: the alone scans without a refresh + the "
+          f"refreshes x (a pick-up scan - those))\n")
+    print("| block | refreshes per block per scan | in the program, Ir per call | alone: mean per scan | "
+          "pick-up scans | Ir in them | in the others | prediction A | prediction B |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    tot = {"m": 0.0, "a": 0.0, "b": 0.0}
+    waits = []
+    for s, b in kinds.items():
+        r = ab[s]
+        pick = r["body_pub"] if r["body_pub"] is not None else r["body"]
+        other = (r["body"] - r["pub"] * pick) / (1 - r["pub"]) if r["pub"] < 1 else alone[s]["body"]
+        per = statistics.mean(q["pub"][s] for q in scans) / n_of[s]          # refreshes per block per scan
+        m = statistics.mean(q["ir"][s] for q in scans) / n_of[s]
+        idle = [q["ir"][s] / n_of[s] for q in scans if not q["pub"][s]]
+        waits.append(f"{s} {num(statistics.mean(idle)) if idle else '-'} ({len(idle)} scans)")
+        a = alone[s]["body"] + per * ((r["body"] - alone[s]["body"]) / r["pub"] if r["pub"] else 0.0)
+        bb = other + per * (pick - other)
+        for k, x in (("m", m), ("a", a), ("b", bb)):
+            tot[k] += n_of[s] * x
+        print(f"| `{b}` | {per:.4f} | {num(m)} | {num(r['body'])} | {r['pub']:.0%} | {num(pick)} | {num(other)} | "
+              f"{num(a)} | {num(bb)} |")
+    print(f"| all blocks, per scan | | {num(tot['m'])} | | | | | {num(tot['a'])} ({tot['m'] / tot['a']:.3f}) | "
+          f"{num(tot['b'])} ({tot['m'] / tot['b']:.3f}) |")
+    print(f"\nIn the program's scans in which no block of that kind refreshed, Ir per call: {', '.join(waits)}.")
+    print(f"Whole program (`MAIN_body__`) per scan: mean {num(statistics.mean(q['prog'] for q in scans))}, "
+          f"max {num(max(q['prog'] for q in scans))}.")
 
 if __name__ == "__main__":
     sys.exit(main())

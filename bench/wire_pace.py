@@ -32,6 +32,7 @@ process is stopped by pid, the temp dir is removed.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import re
@@ -77,6 +78,25 @@ def stop(proc: subprocess.Popen, sig=signal.SIGTERM, timeout=10.0) -> None:
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait()
+
+
+@contextlib.contextmanager
+def temp_root(prefix: str):
+    """A temp dir that is TMPDIR too while it lives (the simulators', programs' and runner's temp
+    dirs go in it), removed at the end, TMPDIR as it was."""
+    tmp = tempfile.mkdtemp(prefix=prefix)
+    old_tmpdir = os.environ.get("TMPDIR")
+    os.environ["TMPDIR"] = tmp
+    tempfile.tempdir = tmp
+    try:
+        yield tmp
+    finally:
+        tempfile.tempdir = None
+        if old_tmpdir is None:
+            os.environ.pop("TMPDIR", None)
+        else:
+            os.environ["TMPDIR"] = old_tmpdir
+        shutil.rmtree(tmp, ignore_errors=True)
 
 
 def cache_value(build: str, key: str) -> str | None:
