@@ -3,7 +3,9 @@
  *
  * Work, in this order: posted requests (writes, generic reads) in posting order, then
  * the refresh of the plan due first (ties: round robin); a posted request also goes
- * before each read of a refresh. Otherwise the worker waits, using no CPU, until the next
+ * before each read of a refresh. A chain (mbfb_post_chain) is a posted request that runs
+ * one entry (write and read-back) per turn and is then queued again, so the refreshes
+ * and other posts interleave with its entries. Otherwise the worker waits, using no CPU, until the next
  * due time or a post (mbfb_wake.c), and, while a device is out of step, for input on the
  * port too: a late reply is read the moment it comes.
  * A request's attempts are in mbfb_attempt.c, the rules of late replies and resync reads
@@ -37,12 +39,51 @@ void mbfb_plans_no_port(mbfb_bus_t *bus, int64_t now, int err)
 
 /* ---- posted requests ---------------------------------------------------------------- */
 
-/* A posted request. */
+/* One entry of a chain (slot s, entry i): its write, confirmed as any idempotent write
+ * (mbfb_attempt.c), then its read-back. MBFB_OK when the word read is the word written,
+ * MBFB_E_NOT_HELD when it is not, else the failed request's MBFB_E_*. */
+static int run_chain_entry(mbfb_bus_t *bus, mbfb_slot_t *s, int i)
+{
+    mbfb_request_t request;
+    uint16_t word = s->values[s->count + i], back = 0;
+    int rc;
+
+    memset(&request, 0, sizeof request);
+    request.devidx = s->dev;
+    request.fc = MBFB_FC_WRITE_SINGLE;
+    request.addr = s->values[i];
+    request.count = 1;
+    request.policy = MBFB_WRITE_IDEMPOTENT;
+    request.vals = &word;
+    if ((rc = mbfb_device_request(bus, &request)) != MBFB_OK)
+        return rc;
+    request.fc = MBFB_FC_READ_HOLDING;
+    request.vals = NULL;
+    request.out = &back;
+    if ((rc = mbfb_device_request(bus, &request)) != MBFB_OK)
+        return rc;
+    return back == word ? MBFB_OK : MBFB_E_NOT_HELD;
+}
+
+/* A posted request. A chain runs one entry per turn: held with more to come, it is
+ * queued again behind what was posted meanwhile (mbfb_slot_requeue), so posted requests
+ * and plan reads go between its entries. */
 static void run_slot(mbfb_bus_t *bus, mbfb_slot_t *s)
 {
     mbfb_request_t request;
     int rc;
 
+    if (s->chain) {
+        int held = __atomic_load_n(&s->nvals, __ATOMIC_RELAXED);
+        rc = run_chain_entry(bus, s, held);
+        if (rc == MBFB_OK)
+            __atomic_store_n(&s->nvals, ++held, __ATOMIC_RELEASE);
+        if (rc == MBFB_OK && held < s->count)
+            mbfb_slot_requeue(bus, s);
+        else
+            mbfb_slot_finish(s, rc);
+        return;
+    }
     memset(&request, 0, sizeof request);
     request.devidx = s->dev;
     request.fc = s->fc;
@@ -56,12 +97,16 @@ static void run_slot(mbfb_bus_t *bus, mbfb_slot_t *s)
     mbfb_slot_finish(s, rc);
 }
 
-/* Run every posted request; 1 if the worker must stop. */
+/* Run the requests posted before this call, oldest first (a chain's next entry queued
+ * meanwhile waits for the next call: a plan read or the worker loop comes first); 1 if
+ * the worker must stop. */
 static int run_posted(mbfb_bus_t *bus)
 {
+    uint32_t before = __atomic_load_n(&bus->post_seq, __ATOMIC_ACQUIRE);
     mbfb_slot_t *s;
+
     while (!__atomic_load_n(&bus->stop, __ATOMIC_ACQUIRE)) {
-        if ((s = mbfb_slot_next(bus)) == NULL)
+        if ((s = mbfb_slot_next(bus, &before)) == NULL)
             return 0;
         run_slot(bus, s);
     }
