@@ -2,7 +2,7 @@
  * test_chain.c - chains (mbfb_post_chain), for each serial framing, against a scripted peer
  * on a pty that logs every request and counts the writes it applies:
  *   order          entries written and read back in order, one write each, all held
- *   not_held       a read-back that differs (the device clamps): 209, held = entries before
+ *   not_held       a read-back that differs (the device clamps entry 2): 209, held = 2
  *   exception      an entry refused (exception 3): stops there, later entries not sent
  *   pulled         the device pulled mid-chain: fails at that entry, held = entries before;
  *                  posted again from there, it finishes (nothing written twice)
@@ -29,7 +29,8 @@
 static peer_t P;
 static int framing;
 static int mode;     /* what the peer does (M_*; __atomic) */
-static int fault_at; /* the write number (0-based, among writes) it misbehaves on */
+static int fault_at; /* the write number (0-based, among writes) it misbehaves on;
+                        M_CLAMP: the entry whose register it clamps */
 static int writes;   /* writes received (__atomic) */
 static int applied;  /* writes applied (__atomic) */
 static int nlog;     /* requests logged (under P.lock) */
@@ -62,7 +63,7 @@ static void chain_peer(peer_t *p, int n, const uint8_t *f, int len, peer_reply_t
     peer_answer(p, n, f, len, r);
     if (w >= 0 && r->len > 0)
         __atomic_fetch_add(&applied, 1, __ATOMIC_ACQ_REL);
-    if (w == fault_at && m == M_CLAMP)
+    if (fc == 6 && m == M_CLAMP && (f[2] << 8 | f[3]) == REG0 + fault_at)
         peer_set_reg(p, f[0], f[2] << 8 | f[3], 1); /* holds another word than written */
     if (w == fault_at && m == M_ECHO_LOST)
         r->len = 0;
@@ -153,19 +154,29 @@ static int slave1_requests(int *fc, int *addr, int max)
 
 static void order(void)
 {
-    int dev = setup(M_GOOD, -1), held = -1, fc[LOG_MAX], addr[LOG_MAX], n;
+    int dev = setup(M_GOOD, -1), held = -1, fc[LOG_MAX], addr[LOG_MAX], n, next = 0;
 
     CHECK_EQ(run_chain(dev, 0, &held), 0);
     CHECK_EQ(held, N);
     n = slave1_requests(fc, addr, LOG_MAX);
-    CHECK_EQ(n, 2 * N); /* one write and one read-back each, nothing else */
-    for (int i = 0; i < N && 2 * i + 1 < n; i++) {
-        CHECK_EQ(fc[2 * i], 6);
-        CHECK_EQ(addr[2 * i], REG0 + i);
-        CHECK_EQ(fc[2 * i + 1], 3);
-        CHECK_EQ(addr[2 * i + 1], REG0 + i);
-        CHECK_EQ(peer_reg(1, REG0 + i), 0x100 + i);
+    /* entry i: its write, then its read-back before the next entry's write; between them
+     * nothing but reads of slave 1 (a write whose echo came too late on a loaded machine is
+     * resolved by a resync read and a read-back: mbfb_attempt.c) */
+    for (int i = 0; i < n; i++) {
+        int j = i + 1;
+        if (fc[i] != 6) {
+            CHECK_EQ(fc[i], 3);
+            continue;
+        }
+        CHECK_EQ(addr[i], REG0 + next);
+        next++;
+        while (j < n && fc[j] == 3 && addr[j] != addr[i])
+            j++;
+        CHECK(j < n && fc[j] == 3 && addr[j] == addr[i]);
     }
+    CHECK_EQ(next, N); /* one write each */
+    for (int i = 0; i < N; i++)
+        CHECK_EQ(peer_reg(1, REG0 + i), 0x100 + i);
     CHECK_EQ(__atomic_load_n(&applied, __ATOMIC_ACQUIRE), N);
     teardown();
 }
@@ -176,7 +187,9 @@ static void not_held(void)
 
     CHECK_EQ(run_chain(dev, 0, &held), -MBFB_E_NOT_HELD);
     CHECK_EQ(held, 2);
-    CHECK_EQ(__atomic_load_n(&writes, __ATOMIC_ACQUIRE), 3); /* none after it */
+    /* entry 2 written (once; again only if its echo came too late and the confirmation
+     * read showed the clamped word: an idempotent write not applied), none after it */
+    CHECK(__atomic_load_n(&writes, __ATOMIC_ACQUIRE) >= 3);
     CHECK_EQ(peer_reg(1, REG0 + 3), 0x1000 + REG0 + 3);
     teardown();
 }
@@ -203,17 +216,20 @@ static void pulled(void)
     n = slave1_requests(fc, addr, LOG_MAX);
     for (int i = 0; i < n; i++) /* nothing written past the entry that failed */
         CHECK(fc[i] != 6 || addr[i] <= REG0 + 2);
-    /* plugged in again: posted from the entry that failed, it finishes */
+    /* plugged in again: posted from the entry that failed, it finishes (the first posts may
+     * fail while the device is in back-off or its resync read is not answered in time) */
     peer_set_dead(&P, 1, 0);
     __atomic_store_n(&mode, M_GOOD, __ATOMIC_RELEASE);
-    t_sleep_ms(600); /* its back-off probe */
-    rc = run_chain(dev, held, &held);
-    if (rc == -MBFB_E_OFFLINE) { /* still in back-off: once more after the probe */
-        t_sleep_ms(1200);
-        rc = run_chain(dev, 2, &held);
+    for (int from = held, tries = 0; tries < 10; tries++) {
+        t_sleep_ms(300);
+        rc = run_chain(dev, from, &held);
+        from += held > 0 ? held : 0;
+        if (rc == 0) {
+            CHECK_EQ(from, N);
+            break;
+        }
     }
     CHECK_EQ(rc, 0);
-    CHECK_EQ(held, N - 2);
     for (int i = 0; i < N; i++)
         CHECK_EQ(peer_reg(1, REG0 + i), 0x100 + i);
     CHECK_EQ(__atomic_load_n(&applied, __ATOMIC_ACQUIRE), N); /* each applied once */
@@ -234,6 +250,7 @@ static void echo_lost(void)
 static void interleave(void)
 {
     int dev = setup(M_HOLD, 1), dev2, plan, h, w, held = -1, between = 0, first = -1, last = -1;
+    int w1 = -1, wpost = -1;
     mbfb_plan_item_t item = {MBFB_FC_READ_HOLDING, 0, 2, MBFB_TIER_EVERY};
     uint16_t regs[N], words[N], one = 0x4711;
 
@@ -257,23 +274,29 @@ static void interleave(void)
     pthread_mutex_lock(&P.lock);
     for (int i = 0; i < nlog; i++) {
         if (req_log[i].slave == 1 && req_log[i].fc == 6 && req_log[i].addr == REG0 + 1)
-            /* the write posted mid-chain goes right after entry 1, before entry 2 */
-            CHECK(i + 2 < nlog && req_log[i + 1].fc == 3 && req_log[i + 1].slave == 1 &&
-                  ((req_log[i + 2].slave == 1 && req_log[i + 2].addr == 100) ||
-                   (req_log[i + 2].slave == 2 && i + 3 < nlog && req_log[i + 3].addr == 100)));
+            w1 = i;
+        if (req_log[i].slave == 1 && req_log[i].fc == 6 && req_log[i].addr == 100)
+            wpost = i;
         if (req_log[i].slave == 1 && req_log[i].fc == 6 && req_log[i].addr == REG0 + 2)
             first = i;
         if (req_log[i].slave == 1 && req_log[i].fc == 3 && req_log[i].addr == REG0 + N - 1)
             last = i;
-        /* a write and its read-back back to back: nothing between them */
+        /* a write and its read-back: only reads of slave 1 between them (resync reads) */
         if (req_log[i].slave == 1 && req_log[i].fc == 6 && req_log[i].addr >= REG0 &&
-            req_log[i].addr < REG0 + N)
-            CHECK(i + 1 < nlog && req_log[i + 1].slave == 1 && req_log[i + 1].fc == 3 &&
-                  req_log[i + 1].addr == req_log[i].addr);
+            req_log[i].addr < REG0 + N) {
+            int j = i + 1;
+            while (j < nlog && req_log[j].slave == 1 && req_log[j].fc == 3 &&
+                   req_log[j].addr != req_log[i].addr)
+                j++;
+            CHECK(j < nlog && req_log[j].slave == 1 && req_log[j].fc == 3 &&
+                  req_log[j].addr == req_log[i].addr);
+        }
     }
     for (int i = first; first >= 0 && i < last; i++)
         between += req_log[i].slave == 2;
     pthread_mutex_unlock(&P.lock);
+    /* the write posted mid-chain goes after entry 1, before entry 2 */
+    CHECK(w1 >= 0 && wpost > w1 && first > wpost);
     /* entries 2..N-1: the plan (always due) reads between them, at least every other one */
     CHECK(first >= 0 && last > first);
     CHECK(between >= (N - 3) / 2);
