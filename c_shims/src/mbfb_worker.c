@@ -1,13 +1,13 @@
 /*
  * mbfb_worker.c - the one thread per bus that does all its I/O: what it runs when.
  *
- * Work, in this order: posted requests (writes, generic reads) in posting order, then
- * the refresh of the plan due first (ties: round robin); a posted request also goes
- * before each read of a refresh. A chain (mbfb_post_chain) is a posted request that runs
- * one entry (write and read-back) per turn and is then queued again, so the refreshes
- * and other posts interleave with its entries. Otherwise the worker waits, using no CPU, until the next
- * due time or a post (mbfb_wake.c), and, while a device is out of step, for input on the
- * port too: a late reply is read the moment it comes.
+ * Work, in this order: the refresh of the plan due first (ties: round robin), the posted
+ * requests (writes, generic reads) going before each of its reads, in posting order; with
+ * no plan due, the posted requests. A chain (mbfb_post_chain) is a posted request that runs
+ * one entry (write and read-back) per turn and is then queued again: one entry per plan
+ * read while plans are due, back to back otherwise. Otherwise the worker waits, using no
+ * CPU, until the next due time or a post (mbfb_wake.c), and, while a device is out of
+ * step, for input on the port too: a late reply is read the moment it comes.
  * A request's attempts are in mbfb_attempt.c, the rules of late replies and resync reads
  * in mbfb_resync.c.
  */
@@ -302,7 +302,9 @@ static void listen_until(mbfb_bus_t *bus, int64_t until)
         (void)mbfb_wait_quiet(bus, bus->settle_slave); /* a lost port shows in the next attempt */
 }
 
-/* The worker loop: posted requests, the plan due, else wait (file comment). */
+/* The worker loop: the plan due (posted requests before each of its reads), else the
+ * posted requests, else wait (file comment). A chain's next entry waits for the next turn
+ * of run_posted: one entry per plan read while plans are due, back to back otherwise. */
 void *mbfb_worker_main(void *arg)
 {
     mbfb_bus_t *bus = (mbfb_bus_t *)arg;
@@ -311,14 +313,14 @@ void *mbfb_worker_main(void *arg)
         mbfb_plan_t *p;
         int64_t wake_at, now, empty_at;
         mbfb_wake_take(bus); /* the checks below see every post */
-        if (run_posted(bus))
-            break;
         now = mbfb_now_us();
         p = next_plan(bus, now, &wake_at);
         if (p != NULL) {
-            run_refresh(bus, p);
+            run_refresh(bus, p); /* the posts go before each of its reads */
             continue;
         }
+        if (run_posted(bus))
+            break;
         /* idle: busy_permille as of now, and one wake when the window empties */
         empty_at = mbfb_busy_update(bus, now);
         if (empty_at < wake_at)
