@@ -62,11 +62,12 @@ def window(out: str, frames: list, name: str, scan_s: float, turn: float) -> dic
     (s0, f0, r0), (s1, f1, r1) = ((int(x) for x in m[w].groups()) for w in ("start", "end"))
     secs = (s1 - s0) * scan_s
     rx = [f["hex"].split() for f in frames[f0:f1] if f["dir"] == "rx" and f["hex"]]
+    whole = [r for r in rx if len(r) >= 6]   # a frame cut short by noise is not a request
     tx = {i: f["hex"].split() for i, f in enumerate(frames[f0:f1]) if f["dir"] == "tx" and f["hex"]}
 
     def bus(reqs):
         return sum(GAP_S + turn + (len(r) + 8) * CHAR_S for r in reqs)   # + a reply of ~8 bytes
-    mv = [r for r in rx if r[0] == "01"]
+    mv = [r for r in whole if r[0] == "01"]
     writes = [r for r in mv if r[1] == "06"]
     backs = [r for r in mv if r[1] == "03" and r[4:6] == ["00", "01"]]
     line_bytes = sum(len(r) for r in rx) + sum(len(t) for t in tx.values())

@@ -433,8 +433,9 @@ extern pthread_mutex_t mbfb_registry_lock;
 
 /* worker side of the slots (mbfb_req.c) */
 /** The oldest queued request posted (or queued again: a chain's next entry) before
- *  sequence number *before (NULL: any), made ACTIVE; NULL if none. */
-mbfb_slot_t *mbfb_slot_next(mbfb_bus_t *bus, const uint32_t *before);
+ *  sequence number *before (NULL: any), chains only when `chains`, made ACTIVE; NULL if
+ *  none. */
+mbfb_slot_t *mbfb_slot_next(mbfb_bus_t *bus, const uint32_t *before, int chains);
 /** A chain's entry held and more to come: ACTIVE -> QUEUED again, behind every request
  *  posted so far (cancelled meanwhile: FREE). */
 void mbfb_slot_requeue(mbfb_bus_t *bus, mbfb_slot_t *s);

@@ -345,10 +345,10 @@ static int bus_unscanned(mbfb_bus_t *bus)
     return now - bus->scanned_us > bound;
 }
 
-/* The oldest queued request (posted before *before, if given), made ACTIVE; NULL if none.
- * Requests queued by a PLC that has stopped scanning (bus_unscanned) end MBFB_E_STOPPED,
- * not sent. */
-mbfb_slot_t *mbfb_slot_next(mbfb_bus_t *bus, const uint32_t *before)
+/* The oldest queued request (posted before *before, if given; a chain only if `chains`),
+ * made ACTIVE; NULL if none. Requests queued by a PLC that has stopped scanning
+ * (bus_unscanned) end MBFB_E_STOPPED, not sent. */
+mbfb_slot_t *mbfb_slot_next(mbfb_bus_t *bus, const uint32_t *before, int chains)
 {
     for (;;) {
         mbfb_slot_t *best = NULL;
@@ -360,6 +360,8 @@ mbfb_slot_t *mbfb_slot_next(mbfb_bus_t *bus, const uint32_t *before)
             seq = __atomic_load_n(&bus->slots[i].seq, __ATOMIC_RELAXED);
             if (before != NULL && (int32_t)(seq - *before) >= 0)
                 continue; /* queued after the caller's bound: its next turn */
+            if (!chains && bus->slots[i].chain)
+                continue; /* not between two reads of one refresh */
             if (best == NULL || (int32_t)(seq - best_seq) < 0) {
                 best = &bus->slots[i];
                 best_w = w;
@@ -413,6 +415,6 @@ void mbfb_slot_finish(mbfb_slot_t *s, int result)
 void mbfb_slot_fail_queued(mbfb_bus_t *bus, int result)
 {
     mbfb_slot_t *s;
-    while ((s = mbfb_slot_next(bus, NULL)) != NULL)
+    while ((s = mbfb_slot_next(bus, NULL, 1)) != NULL)
         mbfb_slot_finish(s, result);
 }

@@ -4,8 +4,8 @@
  * Work, in this order: the refresh of the plan due first (ties: round robin), the posted
  * requests (writes, generic reads) going before each of its reads, in posting order; with
  * no plan due, the posted requests. A chain (mbfb_post_chain) is a posted request that runs
- * one entry (write and read-back) per turn and is then queued again: one entry per plan
- * read while plans are due, back to back otherwise. Otherwise the worker waits, using no
+ * one entry (write and read-back) per turn and is then queued again: one entry before
+ * each refresh while plans are due, back to back otherwise. Otherwise the worker waits, using no
  * CPU, until the next due time or a post (mbfb_wake.c), and, while a device is out of
  * step, for input on the port too: a late reply is read the moment it comes.
  * A request's attempts are in mbfb_attempt.c, the rules of late replies and resync reads
@@ -97,16 +97,16 @@ static void run_slot(mbfb_bus_t *bus, mbfb_slot_t *s)
     mbfb_slot_finish(s, rc);
 }
 
-/* Run the requests posted before this call, oldest first (a chain's next entry queued
- * meanwhile waits for the next call: a plan read or the worker loop comes first); 1 if
+/* Run the requests posted before this call, oldest first, chains' entries only when
+ * `chains` (a chain's next entry, queued again meanwhile, waits for the next call); 1 if
  * the worker must stop. */
-static int run_posted(mbfb_bus_t *bus)
+static int run_posted(mbfb_bus_t *bus, int chains)
 {
     uint32_t before = __atomic_load_n(&bus->post_seq, __ATOMIC_ACQUIRE);
     mbfb_slot_t *s;
 
     while (!__atomic_load_n(&bus->stop, __ATOMIC_ACQUIRE)) {
-        if ((s = mbfb_slot_next(bus, &before)) == NULL)
+        if ((s = mbfb_slot_next(bus, &before, chains)) == NULL)
             return 0;
         run_slot(bus, s);
     }
@@ -170,21 +170,22 @@ static int tier_read(int tier, int slow)
  * not open (every plan of the bus has published that, mbfb_plans_no_port). */
 #define REFRESH_ABANDONED (-1)
 
-/* Read a refresh's items of its tiers back to back, posted requests before each, into
- * words (item i at its offset) and *mask. MBFB_OK, the MBFB_E_* of the read that failed,
- * or REFRESH_ABANDONED. */
+/* Read a refresh's items of its tiers back to back, posted requests before each (and a
+ * chain's entry before the first: one per refresh), into words (item i at its offset) and
+ * *mask. MBFB_OK, the MBFB_E_* of the read that failed, or REFRESH_ABANDONED. */
 static int read_items(mbfb_bus_t *bus, const mbfb_plan_t *p, const mbfb_plan_cfg_t *cfg,
                       int slow, int64_t start, uint16_t *words, uint32_t *mask)
 {
-    int offset = 0;
+    int offset = 0, first = 1;
 
     for (int i = 0; i < cfg->n; offset += cfg->items[i].count, i++) {
         mbfb_request_t request;
         int rc;
         if (!tier_read(cfg->items[i].tier, slow))
             continue;
-        if (run_posted(bus))
+        if (run_posted(bus, first))
             return REFRESH_ABANDONED;
+        first = 0;
         if (bus->fd < 0 && bus->reopen_us > start)
             return REFRESH_ABANDONED; /* a posted request could not open the port */
         memset(&request, 0, sizeof request);
@@ -304,7 +305,7 @@ static void listen_until(mbfb_bus_t *bus, int64_t until)
 
 /* The worker loop: the plan due (posted requests before each of its reads), else the
  * posted requests, else wait (file comment). A chain's next entry waits for the next turn
- * of run_posted: one entry per plan read while plans are due, back to back otherwise. */
+ * of run_posted: one entry per refresh while plans are due, back to back otherwise. */
 void *mbfb_worker_main(void *arg)
 {
     mbfb_bus_t *bus = (mbfb_bus_t *)arg;
@@ -319,7 +320,7 @@ void *mbfb_worker_main(void *arg)
             run_refresh(bus, p); /* the posts go before each of its reads */
             continue;
         }
-        if (run_posted(bus))
+        if (run_posted(bus, 1))
             break;
         /* idle: busy_permille as of now, and one wake when the window empties */
         empty_at = mbfb_busy_update(bus, now);
