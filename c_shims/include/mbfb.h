@@ -10,11 +10,12 @@
  *   device  (bus, slave id): owns diagnostics and the offline back-off state.
  *   request one Modbus transaction posted by a block; lives in a preallocated slot.
  *
- * Scan-side calls (mbfb_post, mbfb_post_write, mbfb_poll, mbfb_take, mbfb_cancel,
- * mbfb_plan_set/_stop/_invalidate/_take, mbfb_dev_diag, mbfb_dev_diag_seq,
- * mbfb_bus_diag, mbfb_strerror) never block and never allocate; the only system call
- * they make is a write() to the bus's eventfd in mbfb_post, mbfb_post_write and
- * mbfb_plan_set, to wake the worker, and only when it is waiting (none while it is busy),
+ * Scan-side calls (mbfb_post, mbfb_post_write, mbfb_post_chain, mbfb_chain_held, mbfb_poll,
+ * mbfb_take, mbfb_cancel, mbfb_plan_set/_stop/_invalidate/_take, mbfb_dev_diag,
+ * mbfb_dev_diag_seq, mbfb_bus_diag, mbfb_strerror) never block and never allocate; the only
+ * system call they make is a write() to the bus's eventfd in mbfb_post, mbfb_post_write,
+ * mbfb_post_chain and mbfb_plan_set, to wake the worker, and only when it is waiting (none
+ * while it is busy),
  * and in the mbfb_plan_take that gets a parked plan's snapshot once the PLC scans again
  * after a stop (README "Lifetime").
  * Setup calls (mbfb_bus_open, mbfb_dev_open) may allocate and start the worker;
@@ -108,7 +109,7 @@ extern "C" {
                                      100 ms, GPIO without its chip or line)             */
 #define MBFB_E_NOT_ENABLED   208 /* command on a device block whose Enable is FALSE     */
 #define MBFB_E_NOT_HELD      209 /* a settings download's read-back shows another word
-                                     than the one written (MB_Sequence)                 */
+                                     than the one written (a chain entry: mbfb_post_chain) */
 
 /* ---- RS-485 direction control (README "Direction control") ------------------
  * A half-duplex transceiver (MAX485 and the like) must drive the line while the master
@@ -221,6 +222,30 @@ int mbfb_cancel(int req);
 /** Post a write (fc 6 or 16) with a confirmation policy (MBFB_WRITE_*). mbfb_post's writes
  *  are MBFB_WRITE_IDEMPOTENT. Returns a request handle > 0 or a negative error. */
 int mbfb_post_write(int dev, int fc, int addr, int count, const uint16_t *values, int policy);
+
+/* ---- chains: settings written in order, each confirmed and read back -------------
+ * A chain is one request holding a list of single-register writes (a recipe). The worker
+ * runs its entries in order at the wire's pace: each is written (FC06, confirmed as
+ * MBFB_WRITE_IDEMPOTENT) and read back (FC03, one word), and is held only when the word
+ * read is the word written. Posted requests and the bus's plan refreshes get their turn
+ * between two entries (never between a write and its read-back), so a chain does not hold
+ * the line. It stops at the first entry not held: the request FAILED with that entry's
+ * error (MBFB_E_NOT_HELD when the read-back differs) and mbfb_chain_held tells how many
+ * entries, from the first, are held. A chain between two entries is QUEUED: mbfb_cancel
+ * ends it there (the entries held stay held), and the lifetime rules of a queued request
+ * hold for it (MBFB_E_STOPPED, mbfb_shutdown). */
+#define MBFB_CHAIN_MAX 62 /* entries per chain: its registers and words fill one slot */
+
+/** Post a chain of n (1..MBFB_CHAIN_MAX) entries: entry i writes words[i] to holding
+ *  register regs[i]. Both arrays are copied. Returns a request handle > 0 (mbfb_poll,
+ *  mbfb_take, mbfb_cancel as for any request) or a negative error, nothing sent:
+ *  -MBFB_E_INVAL for n out of range or a broadcast device (no read-back). */
+int mbfb_post_chain(int dev, int n, const uint16_t *regs, const uint16_t *words);
+
+/** Entries of chain `req` held so far, from the first (all of them once it is DONE; those
+ *  before the entry that failed once it is FAILED): >= 0, or -MBFB_E_BADHANDLE for an
+ *  unknown or taken handle or a request that is not a chain. Read it before mbfb_take. */
+int mbfb_chain_held(int req);
 
 /* ---- refresh plans: a device's whole refresh, run by the worker ----------------
  * A plan is the list of reads that make one refresh of a device. The worker runs a

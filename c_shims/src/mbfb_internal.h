@@ -250,10 +250,15 @@ typedef struct mbfb_slot {
     uint32_t seq;           /* post order, FIFO among queued requests             */
     int dev, fc, addr, count;
     int policy;             /* MBFB_WRITE_* for writes                           */
+    int chain;              /* 1: a chain (mbfb_post_chain) of `count` entries: registers
+                               in values[0..count), words in values[count..2 count)   */
     int result;             /* MBFB_OK or positive MBFB_E_* (written by worker)  */
-    int nvals;              /* registers read                                    */
+    int nvals;              /* registers read; a chain: entries held (atomic: worker
+                               writes, mbfb_chain_held reads)                      */
     uint16_t values[MBFB_MAX_READ]; /* write values in, read values out          */
 } mbfb_slot_t;
+/* a chain's registers and words fit in one slot */
+typedef char mbfb_chain_fits_a_slot[2 * MBFB_CHAIN_MAX <= MBFB_MAX_READ ? 1 : -1];
 
 /* ---- devices ------------------------------------------------------------- */
 /** Reply shape of a failed attempt whose reply may still come (README "Late replies"):
@@ -427,7 +432,13 @@ extern mbfb_plan_t *mbfb_plans[MBFB_MAX_PLANS];
 extern pthread_mutex_t mbfb_registry_lock;
 
 /* worker side of the slots (mbfb_req.c) */
-mbfb_slot_t *mbfb_slot_next(mbfb_bus_t *bus);          /* QUEUED -> ACTIVE, FIFO */
+/** The oldest queued request posted (or queued again: a chain's next entry) before
+ *  sequence number *before (NULL: any), chains only when `chains`, made ACTIVE; NULL if
+ *  none. */
+mbfb_slot_t *mbfb_slot_next(mbfb_bus_t *bus, const uint32_t *before, int chains);
+/** A chain's entry held and more to come: ACTIVE -> QUEUED again, behind every request
+ *  posted so far (cancelled meanwhile: FREE). */
+void mbfb_slot_requeue(mbfb_bus_t *bus, mbfb_slot_t *s);
 void mbfb_slot_finish(mbfb_slot_t *s, int result);     /* ACTIVE -> DONE/FAILED  */
 void mbfb_slot_fail_queued(mbfb_bus_t *bus, int result);
 

@@ -58,15 +58,42 @@ int mbfb_post(int dev, int fc, int addr, int count, const uint16_t *values)
     return mbfb_post_write(dev, fc, addr, count, values, MBFB_WRITE_IDEMPOTENT);
 }
 
-/* Claim a free slot by CAS, fill it, queue it and wake the worker. Reads go through
- * here too (policy unused). */
+/* Claim a free slot of the bus by CAS: the slot (CLAIMED, *index, *gen), or NULL when
+ * none is free. */
+static mbfb_slot_t *claim_slot(mbfb_bus_t *bus, int *index, uint32_t *gen)
+{
+    for (int i = 0; i < MBFB_MAX_SLOTS; i++) {
+        uint32_t w = LOAD(&bus->slots[i].state);
+        if (ST(w) != MBFB_SLOT_FREE)
+            continue;
+        *gen = (GEN(w) + 1) & MBFB_GEN_MASK;
+        if (CAS(&bus->slots[i].state, w, WORD(*gen, MBFB_SLOT_CLAIMED))) {
+            *index = i;
+            return &bus->slots[i];
+        }
+    }
+    return NULL;
+}
+
+/* Queue a filled slot behind every request posted so far and wake the worker. */
+static void queue_slot(mbfb_bus_t *bus, mbfb_slot_t *s, uint32_t gen)
+{
+    __atomic_store_n(&s->seq, __atomic_fetch_add(&bus->post_seq, 1u, __ATOMIC_RELAXED),
+                     __ATOMIC_RELAXED);
+    SCANNED(bus);
+    __atomic_store_n(&s->state, WORD(gen, MBFB_SLOT_QUEUED), __ATOMIC_RELEASE);
+    mbfb_wake(bus);
+}
+
+/* Claim a free slot, fill it, queue it and wake the worker. Reads go through here too
+ * (policy unused). */
 int mbfb_post_write(int dev, int fc, int addr, int count, const uint16_t *values, int policy)
 {
     mbfb_dev_t *d;
     mbfb_bus_t *bus;
-    mbfb_slot_t *s = NULL;
+    mbfb_slot_t *s;
     uint32_t gen = 0;
-    int i;
+    int i = 0;
 
     if (dev < 0 || dev >= MBFB_MAX_DEVICES ||
         (d = __atomic_load_n(&mbfb_devs[dev], __ATOMIC_ACQUIRE)) == NULL)
@@ -75,33 +102,66 @@ int mbfb_post_write(int dev, int fc, int addr, int count, const uint16_t *values
         (policy != MBFB_WRITE_IDEMPOTENT && policy != MBFB_WRITE_ONCE))
         return -MBFB_E_INVAL;
     bus = __atomic_load_n(&mbfb_buses[d->bus], __ATOMIC_ACQUIRE);
-    for (i = 0; i < MBFB_MAX_SLOTS; i++) {
-        uint32_t w = LOAD(&bus->slots[i].state);
-        if (ST(w) != MBFB_SLOT_FREE)
-            continue;
-        gen = (GEN(w) + 1) & MBFB_GEN_MASK;
-        if (CAS(&bus->slots[i].state, w, WORD(gen, MBFB_SLOT_CLAIMED))) {
-            s = &bus->slots[i];
-            break;
-        }
-    }
-    if (s == NULL)
+    if ((s = claim_slot(bus, &i, &gen)) == NULL)
         return -MBFB_E_QUEUEFULL;
     s->dev = dev;
     s->fc = fc;
     s->addr = addr;
     s->count = count;
     s->policy = policy;
+    s->chain = 0;
     s->result = 0;
     s->nvals = 0;
     if (mbfb_fc_is_write(fc))
         memcpy(s->values, values, (size_t)count * sizeof values[0]);
-    __atomic_store_n(&s->seq, __atomic_fetch_add(&bus->post_seq, 1u, __ATOMIC_RELAXED),
-                     __ATOMIC_RELAXED);
-    SCANNED(bus);
-    __atomic_store_n(&s->state, WORD(gen, MBFB_SLOT_QUEUED), __ATOMIC_RELEASE);
-    mbfb_wake(bus);
+    queue_slot(bus, s, gen);
     return make_handle(d->bus, i, gen);
+}
+
+/* A chain: its registers and words copied into one slot (mbfb_internal.h). */
+int mbfb_post_chain(int dev, int n, const uint16_t *regs, const uint16_t *words)
+{
+    mbfb_dev_t *d;
+    mbfb_bus_t *bus;
+    mbfb_slot_t *s;
+    uint32_t gen = 0;
+    int i = 0;
+
+    if (dev < 0 || dev >= MBFB_MAX_DEVICES ||
+        (d = __atomic_load_n(&mbfb_devs[dev], __ATOMIC_ACQUIRE)) == NULL)
+        return -MBFB_E_BADHANDLE;
+    if (n < 1 || n > MBFB_CHAIN_MAX || regs == NULL || words == NULL || d->slave == 0)
+        return -MBFB_E_INVAL;
+    bus = __atomic_load_n(&mbfb_buses[d->bus], __ATOMIC_ACQUIRE);
+    if ((s = claim_slot(bus, &i, &gen)) == NULL)
+        return -MBFB_E_QUEUEFULL;
+    s->dev = dev;
+    s->fc = MBFB_FC_WRITE_SINGLE;
+    s->addr = regs[0];
+    s->count = n;
+    s->policy = MBFB_WRITE_IDEMPOTENT;
+    s->chain = 1;
+    s->result = 0;
+    __atomic_store_n(&s->nvals, 0, __ATOMIC_RELAXED);
+    memcpy(s->values, regs, (size_t)n * sizeof regs[0]);
+    memcpy(s->values + n, words, (size_t)n * sizeof words[0]);
+    queue_slot(bus, s, gen);
+    return make_handle(d->bus, i, gen);
+}
+
+/* A chain's entries held: the worker's count, read with the slot's state word. */
+int mbfb_chain_held(int req)
+{
+    uint32_t gen, w;
+    mbfb_slot_t *s = slot_of(req, &gen, NULL);
+    int held;
+
+    if (s == NULL || GEN(w = LOAD(&s->state)) != gen || ST(w) == MBFB_SLOT_FREE ||
+        ST(w) == MBFB_SLOT_CLAIMED || !s->chain)
+        return -MBFB_E_BADHANDLE;
+    held = __atomic_load_n(&s->nvals, __ATOMIC_ACQUIRE);
+    /* taken or reused meanwhile: the count may be another request's */
+    return LOAD(&s->state) == w ? held : -MBFB_E_BADHANDLE;
 }
 
 /* State of a request from its slot's state word. */
@@ -285,9 +345,10 @@ static int bus_unscanned(mbfb_bus_t *bus)
     return now - bus->scanned_us > bound;
 }
 
-/* The oldest queued request, made ACTIVE; NULL if none. Requests queued by a PLC that
- * has stopped scanning (bus_unscanned) end MBFB_E_STOPPED, not sent. */
-mbfb_slot_t *mbfb_slot_next(mbfb_bus_t *bus)
+/* The oldest queued request (posted before *before, if given; a chain only if `chains`),
+ * made ACTIVE; NULL if none. Requests queued by a PLC that has stopped scanning
+ * (bus_unscanned) end MBFB_E_STOPPED, not sent. */
+mbfb_slot_t *mbfb_slot_next(mbfb_bus_t *bus, const uint32_t *before, int chains)
 {
     for (;;) {
         mbfb_slot_t *best = NULL;
@@ -297,6 +358,10 @@ mbfb_slot_t *mbfb_slot_next(mbfb_bus_t *bus)
             if (ST(w) != MBFB_SLOT_QUEUED)
                 continue;
             seq = __atomic_load_n(&bus->slots[i].seq, __ATOMIC_RELAXED);
+            if (before != NULL && (int32_t)(seq - *before) >= 0)
+                continue; /* queued after the caller's bound: its next turn */
+            if (!chains && bus->slots[i].chain)
+                continue; /* not between two reads of one refresh */
             if (best == NULL || (int32_t)(seq - best_seq) < 0) {
                 best = &bus->slots[i];
                 best_w = w;
@@ -313,6 +378,23 @@ mbfb_slot_t *mbfb_slot_next(mbfb_bus_t *bus)
         }
         /* cancelled meanwhile, or not sent: look again */
     }
+}
+
+/* ACTIVE -> QUEUED with a new sequence number (behind every post so far), or CANCELLED ->
+ * FREE; the worker is woken so that it does not wait while the entry is queued. */
+void mbfb_slot_requeue(mbfb_bus_t *bus, mbfb_slot_t *s)
+{
+    uint32_t w = LOAD(&s->state);
+
+    __atomic_store_n(&s->seq, __atomic_fetch_add(&bus->post_seq, 1u, __ATOMIC_RELAXED),
+                     __ATOMIC_RELAXED);
+    for (;;) {
+        uint32_t next = WORD(GEN(w), ST(w) == MBFB_SLOT_CANCELLED ? MBFB_SLOT_FREE
+                                                                   : MBFB_SLOT_QUEUED);
+        if (CAS(&s->state, w, next))
+            break;
+    }
+    mbfb_wake(bus);
 }
 
 /* ACTIVE -> DONE/FAILED, or CANCELLED -> FREE. */
@@ -333,6 +415,6 @@ void mbfb_slot_finish(mbfb_slot_t *s, int result)
 void mbfb_slot_fail_queued(mbfb_bus_t *bus, int result)
 {
     mbfb_slot_t *s;
-    while ((s = mbfb_slot_next(bus)) != NULL)
+    while ((s = mbfb_slot_next(bus, NULL, 1)) != NULL)
         mbfb_slot_finish(s, result);
 }

@@ -1,11 +1,13 @@
 /*
  * mbfb_worker.c - the one thread per bus that does all its I/O: what it runs when.
  *
- * Work, in this order: posted requests (writes, generic reads) in posting order, then
- * the refresh of the plan due first (ties: round robin); a posted request also goes
- * before each read of a refresh. Otherwise the worker waits, using no CPU, until the next
- * due time or a post (mbfb_wake.c), and, while a device is out of step, for input on the
- * port too: a late reply is read the moment it comes.
+ * Work, in this order: the refresh of the plan due first (ties: round robin), the posted
+ * requests (writes, generic reads) going before each of its reads, in posting order; with
+ * no plan due, the posted requests. A chain (mbfb_post_chain) is a posted request that runs
+ * one entry (write and read-back) per turn and is then queued again: one entry before
+ * each refresh while plans are due, back to back otherwise. Otherwise the worker waits, using no
+ * CPU, until the next due time or a post (mbfb_wake.c), and, while a device is out of
+ * step, for input on the port too: a late reply is read the moment it comes.
  * A request's attempts are in mbfb_attempt.c, the rules of late replies and resync reads
  * in mbfb_resync.c.
  */
@@ -37,12 +39,51 @@ void mbfb_plans_no_port(mbfb_bus_t *bus, int64_t now, int err)
 
 /* ---- posted requests ---------------------------------------------------------------- */
 
-/* A posted request. */
+/* One entry of a chain (slot s, entry i): its write, confirmed as any idempotent write
+ * (mbfb_attempt.c), then its read-back. MBFB_OK when the word read is the word written,
+ * MBFB_E_NOT_HELD when it is not, else the failed request's MBFB_E_*. */
+static int run_chain_entry(mbfb_bus_t *bus, mbfb_slot_t *s, int i)
+{
+    mbfb_request_t request;
+    uint16_t word = s->values[s->count + i], back = 0;
+    int rc;
+
+    memset(&request, 0, sizeof request);
+    request.devidx = s->dev;
+    request.fc = MBFB_FC_WRITE_SINGLE;
+    request.addr = s->values[i];
+    request.count = 1;
+    request.policy = MBFB_WRITE_IDEMPOTENT;
+    request.vals = &word;
+    if ((rc = mbfb_device_request(bus, &request)) != MBFB_OK)
+        return rc;
+    request.fc = MBFB_FC_READ_HOLDING;
+    request.vals = NULL;
+    request.out = &back;
+    if ((rc = mbfb_device_request(bus, &request)) != MBFB_OK)
+        return rc;
+    return back == word ? MBFB_OK : MBFB_E_NOT_HELD;
+}
+
+/* A posted request. A chain runs one entry per turn: held with more to come, it is
+ * queued again behind what was posted meanwhile (mbfb_slot_requeue), so posted requests
+ * and plan reads go between its entries. */
 static void run_slot(mbfb_bus_t *bus, mbfb_slot_t *s)
 {
     mbfb_request_t request;
     int rc;
 
+    if (s->chain) {
+        int held = __atomic_load_n(&s->nvals, __ATOMIC_RELAXED);
+        rc = run_chain_entry(bus, s, held);
+        if (rc == MBFB_OK)
+            __atomic_store_n(&s->nvals, ++held, __ATOMIC_RELEASE);
+        if (rc == MBFB_OK && held < s->count)
+            mbfb_slot_requeue(bus, s);
+        else
+            mbfb_slot_finish(s, rc);
+        return;
+    }
     memset(&request, 0, sizeof request);
     request.devidx = s->dev;
     request.fc = s->fc;
@@ -56,12 +97,16 @@ static void run_slot(mbfb_bus_t *bus, mbfb_slot_t *s)
     mbfb_slot_finish(s, rc);
 }
 
-/* Run every posted request; 1 if the worker must stop. */
-static int run_posted(mbfb_bus_t *bus)
+/* Run the requests posted before this call, oldest first, chains' entries only when
+ * `chains` (a chain's next entry, queued again meanwhile, waits for the next call); 1 if
+ * the worker must stop. */
+static int run_posted(mbfb_bus_t *bus, int chains)
 {
+    uint32_t before = __atomic_load_n(&bus->post_seq, __ATOMIC_ACQUIRE);
     mbfb_slot_t *s;
+
     while (!__atomic_load_n(&bus->stop, __ATOMIC_ACQUIRE)) {
-        if ((s = mbfb_slot_next(bus)) == NULL)
+        if ((s = mbfb_slot_next(bus, &before, chains)) == NULL)
             return 0;
         run_slot(bus, s);
     }
@@ -125,21 +170,22 @@ static int tier_read(int tier, int slow)
  * not open (every plan of the bus has published that, mbfb_plans_no_port). */
 #define REFRESH_ABANDONED (-1)
 
-/* Read a refresh's items of its tiers back to back, posted requests before each, into
- * words (item i at its offset) and *mask. MBFB_OK, the MBFB_E_* of the read that failed,
- * or REFRESH_ABANDONED. */
+/* Read a refresh's items of its tiers back to back, posted requests before each (and a
+ * chain's entry before the first: one per refresh), into words (item i at its offset) and
+ * *mask. MBFB_OK, the MBFB_E_* of the read that failed, or REFRESH_ABANDONED. */
 static int read_items(mbfb_bus_t *bus, const mbfb_plan_t *p, const mbfb_plan_cfg_t *cfg,
                       int slow, int64_t start, uint16_t *words, uint32_t *mask)
 {
-    int offset = 0;
+    int offset = 0, first = 1;
 
     for (int i = 0; i < cfg->n; offset += cfg->items[i].count, i++) {
         mbfb_request_t request;
         int rc;
         if (!tier_read(cfg->items[i].tier, slow))
             continue;
-        if (run_posted(bus))
+        if (run_posted(bus, first))
             return REFRESH_ABANDONED;
+        first = 0;
         if (bus->fd < 0 && bus->reopen_us > start)
             return REFRESH_ABANDONED; /* a posted request could not open the port */
         memset(&request, 0, sizeof request);
@@ -257,7 +303,9 @@ static void listen_until(mbfb_bus_t *bus, int64_t until)
         (void)mbfb_wait_quiet(bus, bus->settle_slave); /* a lost port shows in the next attempt */
 }
 
-/* The worker loop: posted requests, the plan due, else wait (file comment). */
+/* The worker loop: the plan due (posted requests before each of its reads), else the
+ * posted requests, else wait (file comment). A chain's next entry waits for the next turn
+ * of run_posted: one entry per refresh while plans are due, back to back otherwise. */
 void *mbfb_worker_main(void *arg)
 {
     mbfb_bus_t *bus = (mbfb_bus_t *)arg;
@@ -266,14 +314,14 @@ void *mbfb_worker_main(void *arg)
         mbfb_plan_t *p;
         int64_t wake_at, now, empty_at;
         mbfb_wake_take(bus); /* the checks below see every post */
-        if (run_posted(bus))
-            break;
         now = mbfb_now_us();
         p = next_plan(bus, now, &wake_at);
         if (p != NULL) {
-            run_refresh(bus, p);
+            run_refresh(bus, p); /* the posts go before each of its reads */
             continue;
         }
+        if (run_posted(bus, 1))
+            break;
         /* idle: busy_permille as of now, and one wake when the window empties */
         empty_at = mbfb_busy_update(bus, now);
         if (empty_at < wake_at)
