@@ -107,4 +107,8 @@ inline void from_c(const typename ctype<E>::type (&c)[B::size], strucpp::IEC_ARR
 /* matiec's __CURRENT_TIME in a pragma: the scan's TIME (STruC++ iec_std_lib.hpp TIME()). */
 inline strucpp::TIME_t current_time() { return strucpp::TIME().get(); }
 
+/* matiec's __time_cmp(a, b) in a pragma (iec_std_lib.h): < 0, 0, > 0 as a is before, at or
+   after b. */
+inline long long time_cmp(strucpp::TIME_t a, strucpp::TIME_t b) { return a < b ? -1 : (a > b ? 1 : 0); }
+
 }  // namespace mbfb_v4

@@ -8,7 +8,8 @@
                  mbfb_strucpp.hpp): GetFbVar(X) -> the mirror of X, SetFbVar(X, v) -> the
                  mirror of X assigned, &data__->X.value(.F) -> the mirror's address,
                  data__->X.value(.F) -> the mirror (in a FUNCTION: X itself -> the mirror),
-                 __CURRENT_TIME -> mbfb_v4::current_time(). Mirrors are copied in before and
+                 __CURRENT_TIME -> mbfb_v4::current_time(), __time_cmp(a, b) (matiec's
+                 compare of two TIMEs) -> mbfb_v4::time_cmp(a, b). Mirrors are copied in before and
                  back after the pragma's statements. A pragma using any other form is refused
                  (one line naming file:line and the form, exit 2).
 --mode strip     pragmas removed (the blocks compile but never reach the bus): shows what
@@ -179,6 +180,7 @@ def translate_pragma(code, where, vartypes, structs, function=False):
                     names.append(n)
         i = j
     body = "".join(out).replace("__CURRENT_TIME", "::mbfb_v4::current_time()")
+    body = body.replace("__time_cmp", "::mbfb_v4::time_cmp")
     if "data__" in body or "GetFbVar" in body or "SetFbVar" in body:
         die(f"{where}: a form other than GetFbVar(X), SetFbVar(X, v), &data__->X.value")
     return body, names
