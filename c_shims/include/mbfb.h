@@ -371,6 +371,56 @@ void mbfb_shutdown(void);
 
 #ifdef __cplusplus
 }
+
+#include <cstring>
+
+/** A device block's link and plan settings against its copy of them as last handed on (ST
+ *  MB_SETTINGS_GIVEN, a structure with fields ENABLE, HANDED, LINE, PERIOD, PORT,
+ *  SETTINGSPERIOD, SLAVEID, STALETIME): 1 when they are the same (Port by its length and
+ *  characters, Line and the TIMEs byte for byte), else 0 after copying them into the copy and
+ *  setting its HANDED. One call in a pragma per block, under matiec and under STruC++ (its C
+ *  mirrors, v4/translate.py): the types are each toolchain's C view of STRING, TIME and the
+ *  structures, hence a template (both compile the pragmas as C++). Without settingsPeriod
+ *  (a block without a settings tier) the copy's SETTINGSPERIOD is left alone. */
+template <class G, class S, class L, class I, class B, class T>
+static inline int mbfb_settings_same_p(G &given, const S &port, const L &line, const I &slave,
+                                       const B &enable, const T &period, const T &staleTime,
+                                       const T *settingsPeriod)
+{
+    static_assert(sizeof line == sizeof given.LINE, "MB_SETTINGS_GIVEN.Line is not an MB_LINE");
+    if (given.HANDED && port.len == given.PORT.len
+        && std::memcmp(port.body, given.PORT.body, (size_t)port.len) == 0
+        && std::memcmp(&line, &given.LINE, sizeof line) == 0
+        && slave == given.SLAVEID && enable == given.ENABLE
+        && std::memcmp(&period, &given.PERIOD, sizeof period) == 0
+        && std::memcmp(&staleTime, &given.STALETIME, sizeof staleTime) == 0
+        && (!settingsPeriod
+            || std::memcmp(settingsPeriod, &given.SETTINGSPERIOD, sizeof *settingsPeriod) == 0))
+        return 1;
+    given.PORT = port;
+    std::memcpy(&given.LINE, &line, sizeof line);
+    given.SLAVEID = slave;
+    given.ENABLE = enable;
+    given.PERIOD = period;
+    given.STALETIME = staleTime;
+    if (settingsPeriod)
+        given.SETTINGSPERIOD = *settingsPeriod;
+    given.HANDED = 1;
+    return 0;
+}
+template <class G, class S, class L, class I, class B, class T>
+static inline int mbfb_settings_same(G &given, const S &port, const L &line, const I &slave,
+                                     const B &enable, const T &period, const T &staleTime,
+                                     const T &settingsPeriod)
+{
+    return mbfb_settings_same_p(given, port, line, slave, enable, period, staleTime, &settingsPeriod);
+}
+template <class G, class S, class L, class I, class B, class T>
+static inline int mbfb_settings_same(G &given, const S &port, const L &line, const I &slave,
+                                     const B &enable, const T &period, const T &staleTime)
+{
+    return mbfb_settings_same_p(given, port, line, slave, enable, period, staleTime, (const T *)0);
+}
 #endif
 
 #endif /* MBFB_H */
