@@ -380,12 +380,20 @@ void mbfb_shutdown(void);
  *  characters, Line and the TIMEs byte for byte), else 0 after copying them into the copy and
  *  setting its HANDED. One call in a pragma per block, under matiec and under STruC++ (its C
  *  mirrors, v4/translate.py): the types are each toolchain's C view of STRING, TIME and the
- *  structures, hence a template (both compile the pragmas as C++). Without settingsPeriod
- *  (a block without a settings tier) the copy's SETTINGSPERIOD is left alone. */
+ *  structures, hence a template (both compile the pragmas as C++). settingsPeriod: a pointer,
+ *  left out by a block without a settings tier (its copy's SETTINGSPERIOD is left alone). */
+/* settingsPeriod's type is T, as deduced from period (not from a NULL) */
+template <class T> struct mbfb_same_type { typedef T type; };
+#if defined(__GNUC__) && !defined(__clang__)
+#define MBFB_SCAN_SIDE __attribute__((optimize("O2")))  /* the steady scan's compare, also under -O0 */
+#else
+#define MBFB_SCAN_SIDE
+#endif
 template <class G, class S, class L, class I, class B, class T>
-static inline int mbfb_settings_same_p(G &given, const S &port, const L &line, const I &slave,
-                                       const B &enable, const T &period, const T &staleTime,
-                                       const T *settingsPeriod)
+MBFB_SCAN_SIDE static inline int
+mbfb_settings_same(G &given, const S &port, const L &line, const I &slave, const B &enable,
+                   const T &period, const T &staleTime,
+                   const typename mbfb_same_type<T>::type *settingsPeriod = 0)
 {
     static_assert(sizeof line == sizeof given.LINE, "MB_SETTINGS_GIVEN.Line is not an MB_LINE");
     if (given.HANDED && port.len == given.PORT.len
@@ -407,19 +415,6 @@ static inline int mbfb_settings_same_p(G &given, const S &port, const L &line, c
         given.SETTINGSPERIOD = *settingsPeriod;
     given.HANDED = 1;
     return 0;
-}
-template <class G, class S, class L, class I, class B, class T>
-static inline int mbfb_settings_same(G &given, const S &port, const L &line, const I &slave,
-                                     const B &enable, const T &period, const T &staleTime,
-                                     const T &settingsPeriod)
-{
-    return mbfb_settings_same_p(given, port, line, slave, enable, period, staleTime, &settingsPeriod);
-}
-template <class G, class S, class L, class I, class B, class T>
-static inline int mbfb_settings_same(G &given, const S &port, const L &line, const I &slave,
-                                     const B &enable, const T &period, const T &staleTime)
-{
-    return mbfb_settings_same_p(given, port, line, slave, enable, period, staleTime, (const T *)0);
 }
 #endif
 
