@@ -70,7 +70,6 @@ inline void str_to_c(const S &s, mstring &c) {
     if (n > sizeof c.body) n = sizeof c.body;
     c.len = (int)n;
     std::memcpy(c.body, s.c_str(), n);
-    std::memset(c.body + n, 0, sizeof c.body - n);  /* a structure holding it compares byte for byte */
 }
 template <size_t N>
 inline void to_c(const strucpp::IECStringVar<N> &v, mstring &c) { str_to_c(v.get(), c); }

@@ -371,51 +371,6 @@ void mbfb_shutdown(void);
 
 #ifdef __cplusplus
 }
-
-#include <cstring>
-
-/** A device block's link and plan settings against its copy of them as last handed on (ST
- *  MB_SETTINGS_GIVEN, a structure with fields ENABLE, HANDED, LINE, PERIOD, PORT,
- *  SETTINGSPERIOD, SLAVEID, STALETIME): 1 when they are the same (Port by its length and
- *  characters, Line and the TIMEs byte for byte), else 0 after copying them into the copy and
- *  setting its HANDED. One call in a pragma per block, under matiec and under STruC++ (its C
- *  mirrors, v4/translate.py): the types are each toolchain's C view of STRING, TIME and the
- *  structures, hence a template (both compile the pragmas as C++). settingsPeriod: a pointer,
- *  left out by a block without a settings tier (its copy's SETTINGSPERIOD is left alone). */
-/* settingsPeriod's type is T, as deduced from period (not from a NULL) */
-template <class T> struct mbfb_same_type { typedef T type; };
-#if defined(__GNUC__) && !defined(__clang__)
-#define MBFB_SCAN_SIDE __attribute__((optimize("O2")))  /* the steady scan's compare, also under -O0 */
-#else
-#define MBFB_SCAN_SIDE
-#endif
-template <class G, class S, class L, class I, class B, class T>
-MBFB_SCAN_SIDE static inline int
-mbfb_settings_same(G &given, const S &port, const L &line, const I &slave, const B &enable,
-                   const T &period, const T &staleTime,
-                   const typename mbfb_same_type<T>::type *settingsPeriod = 0)
-{
-    static_assert(sizeof line == sizeof given.LINE, "MB_SETTINGS_GIVEN.Line is not an MB_LINE");
-    if (given.HANDED && port.len == given.PORT.len
-        && std::memcmp(port.body, given.PORT.body, (size_t)port.len) == 0
-        && std::memcmp(&line, &given.LINE, sizeof line) == 0
-        && slave == given.SLAVEID && enable == given.ENABLE
-        && std::memcmp(&period, &given.PERIOD, sizeof period) == 0
-        && std::memcmp(&staleTime, &given.STALETIME, sizeof staleTime) == 0
-        && (!settingsPeriod
-            || std::memcmp(settingsPeriod, &given.SETTINGSPERIOD, sizeof *settingsPeriod) == 0))
-        return 1;
-    given.PORT = port;
-    std::memcpy(&given.LINE, &line, sizeof line);
-    given.SLAVEID = slave;
-    given.ENABLE = enable;
-    given.PERIOD = period;
-    given.STALETIME = staleTime;
-    if (settingsPeriod)
-        given.SETTINGSPERIOD = *settingsPeriod;
-    given.HANDED = 1;
-    return 0;
-}
 #endif
 
 #endif /* MBFB_H */
