@@ -21,6 +21,13 @@
 #include "iec_std_lib.hpp"
 #include "mbfb.h"
 
+/* A TIME in a pragma is STruC++'s integer (mbfb.h's MBFB_TIME_EQ and MBFB_TIME_SUB work on
+   matiec's {tv_sec, tv_nsec}). */
+#undef MBFB_TIME_EQ
+#define MBFB_TIME_EQ(a, b) ((a) == (b))
+#undef MBFB_TIME_SUB
+#define MBFB_TIME_SUB(res, a, b) ((res) = (a) - (b))
+
 namespace mbfb_v4 {
 
 /* matiec's STRING as a pragma sees it: a length and the characters (no terminator). */
@@ -70,6 +77,7 @@ inline void str_to_c(const S &s, mstring &c) {
     if (n > sizeof c.body) n = sizeof c.body;
     c.len = (int)n;
     std::memcpy(c.body, s.c_str(), n);
+    std::memset(c.body + n, 0, sizeof c.body - n);  /* a structure holding it compares byte for byte */
 }
 template <size_t N>
 inline void to_c(const strucpp::IECStringVar<N> &v, mstring &c) { str_to_c(v.get(), c); }

@@ -90,14 +90,32 @@ def unnest_comments(src, fname, notes):
 
 
 def struct_types(text):
-    """ST structure types: name -> [field names] (upper case), in declaration order."""
+    """ST structure types: name -> [(field name, type name)] (upper case), in declaration
+    order (the type name: its first word, without an initial value)."""
     types = {}
     for m in re.finditer(r"(\w+)\s*:\s*STRUCT\b(.*?)END_STRUCT", text, re.S | re.I):
         fields = []
-        for fm in re.finditer(r"(\w+)\s*:\s*[^;]+;", m.group(2)):
-            fields.append(fm.group(1).upper())
+        for fm in re.finditer(r"(\w+)\s*:\s*(\w+)[^;]*;", strip_comments(m.group(2))):
+            fields.append((fm.group(1).upper(), fm.group(2).upper()))
         types[m.group(1).upper()] = fields
     return types
+
+
+def struct_mirror(expr, cexpr, t, structs):
+    """The C mirror of structure `expr` of type t (a structure field that is itself a
+    structure gets a nested mirror): member declarations, copy-in, copy-out."""
+    members, into, back = [], [], []
+    for f, ft in structs[t]:
+        if ft in structs:
+            m, i, b = struct_mirror(f"{expr}.{f}", f"{cexpr}.{f}", ft, structs)
+            members.append("struct { " + " ".join(m) + f" }} {f};")
+            into += i
+            back += b
+        else:
+            members.append(f"::mbfb_v4::ctype_t<decltype({expr}.{f})> {f};")
+            into.append(f"::mbfb_v4::to_c({expr}.{f}, {cexpr}.{f});")
+            back.append(f"::mbfb_v4::from_c({cexpr}.{f}, {expr}.{f});")
+    return members, into, back
 
 
 def fb_var_types(body):
@@ -192,12 +210,14 @@ def mirror_code(names, vartypes, structs):
     for n in names:
         t = vartypes[n]
         if t in structs:
-            fields = structs[t]
-            decl.append(f"struct {n}__t {{ " + " ".join(
-                f"::mbfb_v4::ctype_t<decltype({n}.{f})> {f};" for f in fields) + " };")
-            decl.append(f"{n}__t {n}__c;")
-            decl += [f"::mbfb_v4::to_c({n}.{f}, {n}__c.{f});" for f in fields]
-            back += [f"::mbfb_v4::from_c({n}__c.{f}, {n}.{f});" for f in fields]
+            if n in (f for f, _ in structs[t]):
+                die(f"{n} : {t} names one of its own fields (the C mirror's member would hide it)")
+            members, into, out = struct_mirror(n, f"{n}__c", t, structs)
+            decl.append(f"struct {n}__t {{ " + " ".join(members) + " };")
+            # zeroed first: a mirror is compared byte for byte (mbfb.h, MBFB_SAME_BYTES)
+            decl.append(f"{n}__t {n}__c; std::memset(&{n}__c, 0, sizeof {n}__c);")
+            decl += into
+            back += out
         else:
             decl.append(f"::mbfb_v4::ctype_t<decltype({n})> {n}__c;")
             decl.append(f"::mbfb_v4::to_c({n}, {n}__c);")
