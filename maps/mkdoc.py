@@ -84,6 +84,12 @@ Prefixes: `MVD_` = mvd94.json, `MTS_` = mts9.json, `FDC_` = fdc100.json. NAME an
 written with `_` for any other character (`MTS_REG_REAL_DATA`, `MVD_AFU_DIF_H`). Values may
 be decimal or `16#` hex. Any other constant with a device prefix is an error (a misspelt
 name must not pass unchecked).
+
+A CASE table names its codes the same way: matiec takes only literals as CASE labels, so a
+label line ends with a comment that names its labels, one name per label, each checked as the
+constant of that name would be (`22, 56: ... (* MVD_AFU_NONE, MVD_AFU_NONE38 *)`). In a
+`FUNCTION <P>_DECODE_<X>` (the code decoders, st_src/MVD_Core.st) a label line that names no
+code is an error.
 """
 
 

@@ -1,7 +1,7 @@
 #!/usr/bin/env python3
 """layout.py --editor DIR --palette MBFB_Blocks.xml [--out DIR] - write examples/heat_treat_ld:
-lay out the LD rungs of plc.xml and add the two ST function blocks they call (Recipe_Request,
-read from the ST example, and Line_Products), then let the OpenPLC Editor's own code (a checkout of
+lay out the LD rungs of plc.xml and add the two ST function blocks they call (Recipe_Request
+and Line_Products, read from the ST example), then let the OpenPLC Editor's own code (a checkout of
 github.com/thiagoralves/editor, run headless by plc_lib/editor/editor_tool.py) load the project,
 save plc.xml with its serializer and write heat_treat_ld.st with its PLCGenerator.
 
@@ -155,62 +155,11 @@ class Ladder:
 
 
 # ---------------------------------------------------------------- ST helpers
-# The project's two ST function blocks, called from the ladder: Recipe_Request, the ST example's
-# (read from examples/heat_treat_st/heat_treat_st.st, so the handshake is written once), and
-# Line_Products below, the line's recipes. plc.xml holds each with its interface in XML and its
-# body as ST, as the Editor saves an ST POU.
+# The project's two ST function blocks, called from the ladder: Recipe_Request (the handshake)
+# and Line_Products (the line's recipes), both the ST example's, read from
+# examples/heat_treat_st/heat_treat_st.st so that each is written once. plc.xml holds each with
+# its interface in XML and its body as ST, as the Editor saves an ST POU.
 ST_EXAMPLE = os.path.join(HERE, "..", "heat_treat_st", "heat_treat_st.st")
-LINE_PRODUCTS = """(* The line's products, one recipe per zone each: product A is the line as it was tuned,
-   captured from the zones' Current once both are first read; product B is A with another set
-   point, PID terms and alarm (as in the ST example). Recipe1 / Recipe2 are the recipes of the
-   products the zones' Recipe_Request ask for (Product1 / Product2); Holding the product both
-   zones hold. *)
-FUNCTION_BLOCK Line_Products
-  VAR_INPUT
-    Valid1 : BOOL;                (* zone 1 (FDC-100): Valid, SettingsAge, Current *)
-    Age1 : TIME;
-    Current1 : FDC_SETTINGS;
-    Product1 : INT;               (* zone 1's Recipe_Request: Product, Held *)
-    Held1 : BOOL;
-    Valid2 : BOOL;                (* zone 2 (MV-D94), the same *)
-    Age2 : TIME;
-    Current2 : MVD94_SETTINGS;
-    Product2 : INT;
-    Held2 : BOOL;
-  END_VAR
-  VAR_OUTPUT
-    Ready : BOOL;                 (* the recipes are known (captured) *)
-    Recipe1 : FDC_SETTINGS;       (* zone 1's Settings *)
-    Recipe2 : MVD94_SETTINGS;     (* zone 2's Settings *)
-    Holding : INT;                (* the product the line holds: 1 = A, 2 = B, 0 = none yet or changing *)
-  END_VAR
-  VAR
-    Z1A : FDC_SETTINGS;
-    Z1B : FDC_SETTINGS;
-    Z2A : MVD94_SETTINGS;
-    Z2B : MVD94_SETTINGS;
-  END_VAR
-  IF NOT Ready AND Valid1 AND Valid2 AND Age1 < T#5s AND Age2 < T#5s THEN
-    Z1A := Current1;
-    Z2A := Current2;
-    Z1B := Z1A;
-    Z1B.SP1 := 165.0;
-    Z1B.PB := 15.0;
-    Z2B := Z2A;
-    Z2B.SV := 145.0;
-    Z2B.A1SP := 5.0;
-    Z2B.PB := 12.0;
-    Z2B.TD := 40;
-    Ready := TRUE;
-  END_IF;
-  IF Product1 = 2 THEN Recipe1 := Z1B; ELSE Recipe1 := Z1A; END_IF;
-  IF Product2 = 2 THEN Recipe2 := Z2B; ELSE Recipe2 := Z2A; END_IF;
-  Holding := 0;
-  IF Held1 AND Held2 AND Product1 = Product2 THEN
-    Holding := Product1;
-  END_IF;
-END_FUNCTION_BLOCK
-"""
 ELEMENTARY = {"BOOL", "SINT", "INT", "DINT", "LINT", "USINT", "UINT", "UDINT", "ULINT", "BYTE", "WORD",
               "DWORD", "LWORD", "REAL", "LREAL", "TIME", "DATE", "TOD", "DT"}
 SECTIONS = {"VAR_INPUT": "inputVars", "VAR_OUTPUT": "outputVars", "VAR": "localVars"}
@@ -261,8 +210,7 @@ def helpers():
     """[(name, doc, sections, body)] of the project's ST function blocks."""
     with open(ST_EXAMPLE, encoding="utf-8") as f:
         example = f.read()
-    return [("Recipe_Request", *st_block(example, "Recipe_Request")),
-            ("Line_Products", *st_block(LINE_PRODUCTS, "Line_Products"))]
+    return [(name, *st_block(example, name)) for name in ("Recipe_Request", "Line_Products")]
 
 
 def helper_pins(blocks):

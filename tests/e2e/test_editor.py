@@ -237,18 +237,19 @@ def test_ld_set_point_request_is_sent_only_when_valid_and_settled_on_the_result(
 
 
 def test_ld_product_request_downloads_each_zones_recipe(ld):
-    """HR 1026 (ProductReq) drives each zone's Recipe_Request (the ST example's, the same text),
-    whose Write is the zone's WriteSettings and whose product selects the recipe Line_Products
-    gives the zone's Settings, in that order in the scan; the status registers of the ST
-    example's map (HR 11..15)."""
+    """HR 1026 (ProductReq) drives each zone's Recipe_Request, whose Write is the zone's
+    WriteSettings and whose product selects the recipe Line_Products gives the zone's Settings
+    (both blocks the ST example's, the same text), in that order in the scan; the status
+    registers of the ST example's map (HR 11..15)."""
     root, _, body = ld
     st = st_text()
     with open(os.path.join(oplc.ROOT, "examples", "heat_treat_st", "heat_treat_st.st")) as f:
         example = f.read()
-    fb = st.split("FUNCTION_BLOCK Recipe_Request")[1].split("END_FUNCTION_BLOCK")[0]
-    want = example.split("FUNCTION_BLOCK Recipe_Request")[1].split("END_FUNCTION_BLOCK")[0]
     code = lambda t: [x.strip() for x in t.split("END_VAR")[-1].strip().splitlines()]  # noqa: E731
-    assert code(fb) == code(want), "Recipe_Request is not the ST example's"
+    for name in ("Recipe_Request", "Line_Products"):
+        fb = st.split(f"FUNCTION_BLOCK {name}\n")[1].split("END_FUNCTION_BLOCK")[0]
+        want = example.split(f"FUNCTION_BLOCK {name}\n")[1].split("END_FUNCTION_BLOCK")[0]
+        assert code(fb) == code(want), f"{name} is not the ST example's"
     v = st_vars(st)
     assert v["ProductReq"] == ("%MW2", "INT", None)
     assert v["ProductHeld"] == ("%QW11", "INT", None)

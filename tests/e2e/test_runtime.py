@@ -19,7 +19,8 @@ EXAMPLE = os.path.join(oplc.ROOT, "examples", "heat_treat_st", "heat_treat_st.st
 PORT = 5502
 # Holding registers / coils of the example (see its header comment).
 Z1PV, Z1SV, Z1ERR, Z2PV, Z2SV, Z2ERR, COUNT, COUNTERR, BEAT, Z1SPSTATUS, Z2SPSTATUS = range(11)
-Z2SPREQ = 1025
+PRODUCTHELD, Z1RSTATUS = 11, 12
+Z2SPREQ, PRODUCTREQ = 1025, 1026
 C_Z1VALID, C_Z2VALID, C_Z2QUIET, C_PARTSVALID, C_ANY = 0, 3, 5, 6, 8
 
 
@@ -165,3 +166,46 @@ def test_out_of_range_request_is_refused_not_sent_and_not_retried(plant):
     wait(lambda: hr(client, Z2SPSTATUS)[0] == 0, 10, "status 0 (sent)")
     time.sleep(2.5)
     assert fc06(sim.log(clear=True), 2) == [(0, good)], "the request must be written exactly once"
+
+
+# Product B of the examples (Line_Products): A, captured at the first read, with these fields
+# (simulator register: engineering value); A's set points are the simulator's initial ones.
+PRODUCT_B = {1: {"SP1": 165.0, "PB": 15.0}, 2: {"SV": 145.0, "A1SP": 5.0, "PB": 12.0, "TD": 40}}
+PRODUCT_A_SP = {1: ("SP1", 120.0), 2: ("SV", 100.0)}
+# the register of each field (maps/fdc100.json, maps/mvd94.json)
+ADDR = {1: {"SP1": 0, "PB": 14}, 2: {"SV": 0, "A1SP": 3, "PB": 6, "TD": 7}}
+
+
+def product_switch(sim, client):
+    """HR 1026 := 2: each zone downloads product B's recipe (WriteSettings): the line shows
+    product 2 held (HR 11) with both recipe statuses 0, the simulator holds B's fields, each
+    written once and nothing else (A1SP and TD of zone 2 too: the whole recipe, not only the
+    set point). HR 1026 := 1: back to A, the line as first read. Both examples: their
+    Line_Products, the same block (the LD example's is read from the ST example's text)."""
+    assert "SP1=120.0" in oplc.EXAMPLE_DEVICES[0] and "SV=100.0" in oplc.EXAMPLE_DEVICES[1]
+    wait(lambda: client.coils(10)[C_Z1VALID] and client.coils(10)[C_Z2VALID], 30, "both zones valid")
+    a = {n: {f: sim.ctl("get", addr=n, reg=f)["eng"] for f in PRODUCT_B[n]} for n in (1, 2)}
+    for n, (reg, sp) in PRODUCT_A_SP.items():
+        a[n][reg] = sp
+    assert all(a[n][f] != PRODUCT_B[n][f] for n in (1, 2) for f in PRODUCT_B[n]), a
+    sim.log(clear=True)
+    client.write(PRODUCTREQ, 2)
+    wait(lambda: client.hr(PRODUCTHELD)[0] == 2, 30, "the line to hold product B (HR 11)")
+    assert client.hr(Z1RSTATUS, 4) == [0, 0, 0, 0], "recipe status and field of both zones"
+    log = sim.log(clear=True)
+    for n in (1, 2):
+        for f, v in PRODUCT_B[n].items():
+            assert sim.ctl("get", addr=n, reg=f)["eng"] == v, (n, f)
+        assert sorted(r for r, _ in fc06(log, n)) == sorted(ADDR[n].values()), \
+            f"zone {n}: one write per field that differs, nothing else"
+    client.write(PRODUCTREQ, 1)
+    wait(lambda: client.hr(PRODUCTHELD)[0] == 1, 30, "the line to hold product A again")
+    assert client.hr(Z1RSTATUS, 2) == [0, 0]
+    for n in (1, 2):
+        for f, v in a[n].items():
+            assert sim.ctl("get", addr=n, reg=f)["eng"] == v, (n, f)
+
+
+def test_product_switch_downloads_each_zones_recipe_and_back(plant):
+    sim, plc, client = plant
+    product_switch(sim, client)

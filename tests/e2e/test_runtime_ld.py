@@ -10,7 +10,7 @@ import pytest
 import oplc
 from oplc import s16, wait
 
-from test_runtime import fc06, request_while_offline, running_example  # noqa: E402
+from test_runtime import fc06, product_switch, request_while_offline, running_example  # noqa: E402
 
 EXAMPLE = os.path.join(oplc.ROOT, "examples", "heat_treat_ld", "heat_treat_ld.st")
 PORT = 5502
@@ -156,39 +156,8 @@ def test_ld_reset_coil_resets_the_count_once(plant):
     assert client.hr(COUNTERR)[0] == 0
 
 
-# Product B of the example (Line_Products): A, captured at the first read, with these fields
-# (simulator register: engineering value); A's set points are the simulator's initial ones.
-PRODUCT_B = {1: {"SP1": 165.0, "PB": 15.0}, 2: {"SV": 145.0, "A1SP": 5.0, "PB": 12.0, "TD": 40}}
-PRODUCT_A_SP = {1: ("SP1", 120.0), 2: ("SV", 100.0)}
-# the register of each field (maps/fdc100.json, maps/mvd94.json)
-ADDR = {1: {"SP1": 0, "PB": 14}, 2: {"SV": 0, "A1SP": 3, "PB": 6, "TD": 7}}
-
-
 def test_ld_product_switch_downloads_each_zones_recipe_and_back(plant):
-    """HR 1026 := 2: each zone downloads product B's recipe (WriteSettings): the line shows
-    product 2 held (HR 11) with both recipe statuses 0, the simulator holds B's fields, each
-    written once and nothing else (A1SP and TD of zone 2 too: the whole recipe, not only the
-    set point). HR 1026 := 1: back to A, the line as first read."""
+    """HR 1026 := 2: each zone downloads product B's recipe, HR 1026 := 1: back to A
+    (test_runtime.product_switch: the ST example runs the same check)."""
     sim, client = plant
-    assert "SP1=120.0" in oplc.EXAMPLE_DEVICES[0] and "SV=100.0" in oplc.EXAMPLE_DEVICES[1]
-    wait(lambda: client.coils(10)[C_Z1VALID] and client.coils(10)[C_Z2VALID], 30, "both zones valid")
-    a = {n: {f: sim.ctl("get", addr=n, reg=f)["eng"] for f in PRODUCT_B[n]} for n in (1, 2)}
-    for n, (reg, sp) in PRODUCT_A_SP.items():
-        a[n][reg] = sp
-    assert all(a[n][f] != PRODUCT_B[n][f] for n in (1, 2) for f in PRODUCT_B[n]), a
-    sim.log(clear=True)
-    client.write(PRODUCTREQ, 2)
-    wait(lambda: client.hr(PRODUCTHELD)[0] == 2, 30, "the line to hold product B (HR 11)")
-    assert client.hr(Z1RSTATUS, 4) == [0, 0, 0, 0], "recipe status and field of both zones"
-    log = sim.log(clear=True)
-    for n in (1, 2):
-        for f, v in PRODUCT_B[n].items():
-            assert sim.ctl("get", addr=n, reg=f)["eng"] == v, (n, f)
-        assert sorted(r for r, _ in fc06(log, n)) == sorted(ADDR[n].values()), \
-            f"zone {n}: one write per field that differs, nothing else"
-    client.write(PRODUCTREQ, 1)
-    wait(lambda: client.hr(PRODUCTHELD)[0] == 1, 30, "the line to hold product A again")
-    assert client.hr(Z1RSTATUS, 2) == [0, 0]
-    for n in (1, 2):
-        for f, v in a[n].items():
-            assert sim.ctl("get", addr=n, reg=f)["eng"] == v, (n, f)
+    product_switch(sim, client)

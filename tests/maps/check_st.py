@@ -8,9 +8,14 @@ Every `VAR CONSTANT` / `VAR_GLOBAL CONSTANT` entry whose name starts with MVD_, 
 must equal what its device's map says: a number, or an array <P>_<TABLE>_BY_CODE whose
 elements are the table's (numeric) labels by code. So must every field of a structure type
 named <P>_REGISTERS (TYPE ... STRUCT): field X is the address of register X (checked as the
-constant <P>_REG_X; INPUT_TYPE names TYPE, an ST keyword). Exit 0 when all agree; 1 on any difference, on a
-prefixed constant the rule does not know, or when no prefixed constant is found at all (so the
-check cannot pass empty); 2 on bad arguments or an unreadable map.
+constant <P>_REG_X; INPUT_TYPE names TYPE, an ST keyword). So must every label of a CASE table
+that names its codes: a label line `22, 56: ... (* MVD_AFU_NONE, MVD_AFU_NONE38 ... *)` gives
+its labels (decimal literals: matiec takes no named constant there) the names in the comment
+that ends the line, one name per label, checked as those constants would be; in a FUNCTION
+named <P>_DECODE_<X> every label line must name its codes. Exit 0 when all agree; 1 on any
+difference, on a prefixed constant the rule does not know, on a decoder's label without a name,
+or when no prefixed constant is found at all (so the check cannot pass empty); 2 on bad
+arguments or an unreadable map.
 """
 from __future__ import annotations
 
@@ -38,6 +43,11 @@ FC_MAX = re.compile(r"FC0?(\d+)_MAX_WORDS$")
 TYPE_BLOCK = re.compile(r"\bTYPE\b(.*?)\bEND_TYPE\b", re.S)
 REGISTERS = re.compile(r"\b([A-Za-z]+)_REGISTERS\s*:\s*STRUCT\b(.*?)\bEND_STRUCT\b", re.S | re.I)
 FIELD_ALIASES = {"INPUT_TYPE": "TYPE"}   # a register named by an ST keyword
+CASE_BLOCK = re.compile(r"\bCASE\b.*?\bOF\b(.*?)\bEND_CASE\b", re.S)
+CASE_LABELS = re.compile(r"^[ \t]*(-?\d+(?:[ \t]*,[ \t]*-?\d+)*)[ \t]*:(?!=)", re.M)
+CASE_NAMES = re.compile(r"\(\*\s*([A-Za-z]+_\w+(?:\s*,\s*[A-Za-z]+_\w+)*)")
+FUNCTION = re.compile(r"\bFUNCTION\s+([A-Za-z_]\w*)\b(.*?)\bEND_FUNCTION\b", re.S)
+DECODER = re.compile(r"([A-Za-z]+)_DECODE_\w+$")
 
 
 def st_int(text: str) -> int:
@@ -77,6 +87,37 @@ def constants(paths):
                     field = FIELD_ALIASES.get(e.group(1).upper(), e.group(1))
                     out.append((path, line, f"{st.group(1)}_REG_{field}", e.group(3).strip()))
     return out
+
+
+def case_labels(paths):
+    """The named labels of the CASE tables: ([(file, line, name, label text)], [(file, line,
+    problem)]): a label line whose comment names a different number of codes than it has
+    labels, or a label line of a <P>_DECODE_ function that names none."""
+    out, problems = [], []
+    for path in paths:
+        with open(path, encoding="utf-8", errors="replace") as fh:
+            src = fh.read()
+        clean = COMMENT.sub(lambda m: re.sub(r"[^\n]", " ", m.group(0)), src)
+        decoders = [(f.start(2), f.end(2)) for f in FUNCTION.finditer(clean)
+                    if DECODER.match(f.group(1)) and DECODER.match(f.group(1)).group(1).upper() in PREFIXES]
+        for block in CASE_BLOCK.finditer(clean):
+            for lab in CASE_LABELS.finditer(block.group(1)):
+                at = block.start(1) + lab.start()
+                line = clean.count("\n", 0, at) + 1
+                eol = src.find("\n", at)
+                names = CASE_NAMES.search(src[at:len(src) if eol < 0 else eol])
+                labels = [x.strip() for x in lab.group(1).split(",")]
+                if names is None:
+                    if any(a <= at < b for a, b in decoders):
+                        problems.append((path, line, f"CASE label {lab.group(1)} of a decoder names no "
+                                         "code: end its line with (* <P>_<TABLE>_<LABEL> *)"))
+                    continue
+                named = [x.strip() for x in names.group(1).split(",")]
+                if len(named) != len(labels):
+                    problems.append((path, line, f"CASE labels {labels} named {named}: one name per label"))
+                    continue
+                out += [(path, line, n, v) for n, v in zip(named, labels)]
+    return out, problems
 
 
 def expected(m, rest: str):
@@ -146,7 +187,11 @@ def array_value(text):
 
 def check(paths, maps_dir=MAPS, out=sys.stdout) -> int:
     found = bad = 0
-    for path, line, name, text in constants(paths):
+    labels, problems = case_labels(paths)
+    for path, line, why in problems:
+        print(f"{os.path.relpath(path)}:{line}: {why}", file=out)
+        bad += 1
+    for path, line, name, text in constants(paths) + labels:
         prefix, _, rest = name.partition("_")
         if prefix.upper() not in PREFIXES:
             continue

@@ -260,6 +260,45 @@ def test_check_st_fails_on_a_wrong_table_constant(old, new, why):
     assert rc == 1 and why in out, out
 
 
+# a decoder's CASE table: literal labels (matiec takes no named constant there), named by the
+# comment that ends each label line
+DECODER = """FUNCTION MVD_DECODE_X : INT
+  VAR_INPUT
+    Code : WORD;
+  END_VAR
+  CASE WORD_TO_INT(Code) OF
+    22, 56: MVD_DECODE_X := 0;     (* MVD_AFU_NONE, MVD_AFU_NONE38: either code *)
+    48: MVD_DECODE_X := 1;         (* MVD_AFU_HI *)
+    -1: MVD_DECODE_X := 2;         (* MVD_AFU_LO *)
+  ELSE
+    MVD_DECODE_X := 3;
+  END_CASE;
+END_FUNCTION
+"""
+
+
+def test_check_st_checks_the_named_case_labels():
+    rc, out = run_check_st(DECODER.replace("-1:", "49:"))
+    assert rc == 0, out
+    assert "MVD_AFU_NONE38 = 56: ok (AFU code NONE38)" in out
+    assert "4 constants, 0 differ" in out
+
+
+@pytest.mark.parametrize("old,new,why", [
+    ("-1:", "-1:", "MVD_AFU_LO = -1"),                                  # a wrong code
+    ("-1:", "50:", "MVD_AFU_LO = 50"),
+    ("22, 56:", "22, 57:", "MVD_AFU_NONE38 = 57"),
+    ("(* MVD_AFU_HI *)", "(* MVD_AFU_HIGH *)", "has no label HIGH"),     # a misspelt name
+    ("(* MVD_AFU_HI *)", "(* the high alarm *)", "of a decoder names no code"),
+    ("(* MVD_AFU_HI *)", "", "of a decoder names no code"),
+    ("MVD_AFU_NONE, MVD_AFU_NONE38", "MVD_AFU_NONE", "one name per label"),
+])
+def test_check_st_fails_on_a_wrong_case_label(old, new, why):
+    assert old in DECODER
+    rc, out = run_check_st(DECODER.replace(old, new, 1))
+    assert rc == 1 and why in out, out
+
+
 def test_check_st_fails_when_it_finds_no_constant():
     text = GOOD.replace("VAR CONSTANT", "VAR").replace("MVD_", "X_").replace("MTS_", "Y_")
     rc, out = run_check_st(text.replace("FDC_", "Z_"))
