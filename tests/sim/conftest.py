@@ -199,6 +199,18 @@ def raw_factory():
         p.close()
 
 
+def pymodbus_writes(sim, client):
+    """What a pymodbus client writes through the simulator of test_tcp and test_rtutcp (an
+    MV-D94 at 1, an FDC-100 at 3, an MT-S9 at 5), checked on the devices: the MV-D94's SV
+    (FC06), four FDC words read, the MT-S9's REAL (FC16, low word first)."""
+    assert not client.write_register(0, 1234, slave=1).isError()
+    assert sim.ctl("get", addr=1, reg="SV")["raw"] == 1234
+    rr = client.read_holding_registers(128, count=4, slave=3)
+    assert not rr.isError() and len(rr.registers) == 4
+    assert not client.write_registers(0, [0x000A, 0x0102], slave=5).isError()
+    assert sim.ctl("get", addr=5, reg="REAL")["raw"] == 16908298
+
+
 def crc(frame_hex):
     """Frame hex + its CRC-16/MODBUS (low byte first), computed independently of pymodbus."""
     data = bytes.fromhex(frame_hex)
