@@ -216,19 +216,16 @@ def check(paths, maps_dir=MAPS, out=sys.stdout) -> int:
             print(f"{where}: value {text!r} is not an integer literal ({err})", file=out)
             bad += 1
             continue
-        if isinstance(value, tuple):
-            if value != want:
-                print(f"{where} = [{value[0]}..] {value[1]}, but {m.device}.json says [{want[0]}..] "
-                      f"{want[1]} ({what})", file=out)
-                bad += 1
-            else:
-                print(f"{where}: ok ({what})", file=out)
-        elif value != want:
-            print(f"{where} = {value} (0x{value & 0xFFFF:04X}), but {m.device}.json says {want} "
-                  f"(0x{want & 0xFFFF:04X}, {what})", file=out)
+        if isinstance(value, tuple):          # an array: [first..] the values
+            shown, ok = (lambda v: f"[{v[0]}..] {v[1]}"), f"{where}: ok ({what})"
+        else:
+            shown, ok = (lambda v: f"{v} (0x{v & 0xFFFF:04X})"), f"{where} = {value}: ok ({what})"
+        if value != want:
+            print(f"{where} = {shown(value)}, but {m.device}.json says {shown(want)} ({what})",
+                  file=out)
             bad += 1
         else:
-            print(f"{where} = {value}: ok ({what})", file=out)
+            print(ok, file=out)
     if found == 0:
         print("check_st: no MVD_/MTS_/FDC_ constant found in VAR CONSTANT blocks of "
               + ", ".join(os.path.relpath(p) for p in paths), file=out)

@@ -439,13 +439,19 @@ void peer_stop(peer_t *p)
     p->master = p->slave_keep = -1;
 }
 
-int peer_count(peer_t *p)
+/* One of the peer's counters (an int, or else a long), read under its lock. */
+static long locked_count(peer_t *p, const int *i, const long *l)
 {
-    int n;
+    long n;
     pthread_mutex_lock(&p->lock);
-    n = p->n;
+    n = i != NULL ? *i : *l;
     pthread_mutex_unlock(&p->lock);
     return n;
+}
+
+int peer_count(peer_t *p)
+{
+    return (int)locked_count(p, &p->n, NULL);
 }
 
 int peer_count_reaching(peer_t *p, int n)
@@ -457,20 +463,12 @@ int peer_count_reaching(peer_t *p, int n)
 
 long peer_bytes(peer_t *p)
 {
-    long n;
-    pthread_mutex_lock(&p->lock);
-    n = p->bytes;
-    pthread_mutex_unlock(&p->lock);
-    return n;
+    return locked_count(p, NULL, &p->bytes);
 }
 
 int peer_slave_count(peer_t *p, int slave)
 {
-    int n;
-    pthread_mutex_lock(&p->lock);
-    n = p->per_slave[slave & 255];
-    pthread_mutex_unlock(&p->lock);
-    return n;
+    return (int)locked_count(p, &p->per_slave[slave & 255], NULL);
 }
 
 int peer_raw(peer_t *p, int i, uint8_t *out)

@@ -305,7 +305,9 @@ static void interleave(void)
     teardown();
 }
 
-static void cancel(void)
+/* A chain posted to a peer that holds its replies, once its entry 1 is on the wire: the
+ * chain's handle. */
+static int chain_at_entry_1(void)
 {
     int dev = setup(M_HOLD, 1), h;
     uint16_t regs[N], words[N];
@@ -314,6 +316,13 @@ static void cancel(void)
     h = mbfb_post_chain(dev, N, regs, words);
     while (__atomic_load_n(&writes, __ATOMIC_ACQUIRE) < 2)
         t_sleep_ms(2);
+    return h;
+}
+
+static void cancel(void)
+{
+    int h = chain_at_entry_1();
+
     CHECK_EQ(mbfb_cancel(h), 0); /* entry 1 on the wire: it ends, nothing after it */
     peer_release(&P);
     t_sleep_ms(300);
@@ -326,13 +335,8 @@ static void cancel(void)
 
 static void shutdown_mid(void)
 {
-    int dev = setup(M_HOLD, 1), h;
-    uint16_t regs[N], words[N];
+    int h = chain_at_entry_1();
 
-    chain_of(regs, words);
-    h = mbfb_post_chain(dev, N, regs, words);
-    while (__atomic_load_n(&writes, __ATOMIC_ACQUIRE) < 2)
-        t_sleep_ms(2);
     peer_release(&P);
     mbfb_shutdown(); /* ends the attempt on the wire, starts no other */
     t_sleep_ms(200);

@@ -191,13 +191,24 @@ static void exception_reply(void)
     teardown();
 }
 
-static void truncated(void)
+/* Register `reg` read from a peer answering as `fn` does (3 retries): its value as the peer
+ * holds it (0x1000 + reg), and the device's counters after (the device torn down). */
+static mbfb_diag_t read_through(peer_fn fn, int reg)
 {
     uint16_t v[1];
-    int dev = setup(truncated_once, 3);
-    CHECK_EQ(t_run(dev, 3, 9, 1, NULL, v, 1), 1);
-    CHECK_EQ(v[0], 0x1009);
-    mbfb_diag_t d = t_diag(dev);
+    int dev = setup(fn, 3);
+    mbfb_diag_t d;
+
+    CHECK_EQ(t_run(dev, 3, reg, 1, NULL, v, 1), 1);
+    CHECK_EQ(v[0], 0x1000 + reg);
+    d = t_diag(dev);
+    teardown();
+    return d;
+}
+
+static void truncated(void)
+{
+    mbfb_diag_t d = read_through(truncated_once, 9);
     /* libmodbus reports a truncated RTU frame as a timeout (its byte timeout);
      * the ASCII receiver written here sees the frame start and calls it bad */
     if (framing == MBFB_FRAMING_ASCII)
@@ -206,28 +217,19 @@ static void truncated(void)
         CHECK_EQ(d.timeouts, 1);
     CHECK_EQ(d.retries, 2); /* resync read + the request again */
     CHECK_EQ(d.resyncs, 1);
-    teardown();
 }
 
 static void noise(void)
 {
-    uint16_t v[1];
-    int dev = setup(noise_once, 3);
-    CHECK_EQ(t_run(dev, 3, 2, 1, NULL, v, 1), 1);
-    CHECK_EQ(v[0], 0x1002);
-    mbfb_diag_t d = t_diag(dev);
+    mbfb_diag_t d = read_through(noise_once, 2);
     CHECK_EQ(d.retries, 2); /* resync read + the request again */
     CHECK_EQ(d.bad_replies + d.crc_errors + d.timeouts, 1);
-    teardown();
 
     /* noise right before a good reply: ASCII skips to the ':', RTU retries */
-    dev = setup(noise_before, 3);
-    CHECK_EQ(t_run(dev, 3, 3, 1, NULL, v, 1), 1);
-    CHECK_EQ(v[0], 0x1003);
-    CHECK_EQ(t_diag(dev).retries, framing == MBFB_FRAMING_ASCII ? 0 : 2);
+    d = read_through(noise_before, 3);
+    CHECK_EQ(d.retries, framing == MBFB_FRAMING_ASCII ? 0 : 2);
     if (framing == MBFB_FRAMING_ASCII) /* the two noise bytes skipped before the ':' */
-        CHECK_EQ(t_diag(dev).stray_bytes, 2);
-    teardown();
+        CHECK_EQ(d.stray_bytes, 2);
 }
 
 static void bad_echo_and_count(void)

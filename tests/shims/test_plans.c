@@ -43,6 +43,19 @@ static int open_bus(void)
     return mbfb_bus_open(&c);
 }
 
+/* Scenario `scenario`: slave 1 on a new bus (*dev) and a plan for it (returned). */
+static int open_plan(const char *scenario, int *dev)
+{
+    t_scenario = scenario;
+    *dev = mbfb_dev_open(open_bus(), 1);
+    return mbfb_plan_open(*dev);
+}
+
+/* Words 0..1 every refresh, 10..12 in the slow tier, 20..21 in the fast one. */
+static const mbfb_plan_item_t three_tiers[3] = {{3, 0, 2, MBFB_TIER_EVERY},
+                                                {3, 10, 3, MBFB_TIER_SLOW},
+                                                {3, 20, 2, MBFB_TIER_FAST}};
+
 static void teardown(void)
 {
     mbfb_shutdown();
@@ -174,17 +187,12 @@ static int no_slow(const mbfb_snap_t *s)
 
 static void tiers(void)
 {
-    mbfb_plan_item_t it[3] = {{3, 0, 2, MBFB_TIER_EVERY},
-                              {3, 10, 3, MBFB_TIER_SLOW},
-                              {3, 20, 2, MBFB_TIER_FAST}};
     mbfb_snap_t s;
     uint32_t seq = 0;
     int dev, plan, gen;
 
-    t_scenario = "tiers";
-    dev = mbfb_dev_open(open_bus(), 1);
-    plan = mbfb_plan_open(dev);
-    CHECK_EQ(mbfb_plan_set(plan, it, 3, 0, 3600000), 0); /* slow: once an hour */
+    plan = open_plan("tiers", &dev);
+    CHECK_EQ(mbfb_plan_set(plan, three_tiers, 3, 0, 3600000), 0); /* slow: once an hour */
     CHECK_EQ(wait_snap(plan, &seq, &s, NULL), 1);
     CHECK_EQ(s.seq, 1);
     CHECK_EQ(s.read_mask, 3); /* first refresh: EVERY + SLOW, not FAST */
@@ -214,17 +222,12 @@ static void tiers(void)
  * whole slow period for the words it needs to publish). */
 static void slow_owed(void)
 {
-    mbfb_plan_item_t it[3] = {{3, 0, 2, MBFB_TIER_EVERY},
-                              {3, 10, 3, MBFB_TIER_SLOW},
-                              {3, 20, 2, MBFB_TIER_FAST}};
     mbfb_snap_t s;
     uint32_t seq = 0, before;
     int dev, plan, gen;
 
-    t_scenario = "slow owed";
-    dev = mbfb_dev_open(open_bus(), 1);
-    plan = mbfb_plan_open(dev);
-    CHECK_EQ(mbfb_plan_set(plan, it, 3, 0, 3600000), 0); /* back to back; slow hourly */
+    plan = open_plan("slow owed", &dev);
+    CHECK_EQ(mbfb_plan_set(plan, three_tiers, 3, 0, 3600000), 0); /* back to back; slow hourly */
     CHECK_EQ(wait_snap(plan, &seq, &s, no_slow), 1);
     gen = mbfb_plan_invalidate(plan);
     before = t_diag(dev).refreshes;
@@ -247,9 +250,7 @@ static void stop(void)
     uint32_t seq = 0, a;
     int dev, plan, n;
 
-    t_scenario = "stop";
-    dev = mbfb_dev_open(open_bus(), 1);
-    plan = mbfb_plan_open(dev);
+    plan = open_plan("stop", &dev);
     CHECK_EQ(mbfb_plan_set(plan, it, 1, 0, 0), 0);
     CHECK_EQ(wait_snap(plan, &seq, &s, NULL), 1);
     CHECK_EQ(mbfb_plan_stop(plan), 0);
@@ -329,9 +330,7 @@ static void writes_first(void)
     int dev, plan, c0, h, at = -1, n;
     uint32_t ds;
 
-    t_scenario = "writes first";
-    dev = mbfb_dev_open(open_bus(), 1);
-    plan = mbfb_plan_open(dev);
+    plan = open_plan("writes first", &dev);
     CHECK_EQ(mbfb_plan_set(plan, it, 2, 0, 0), 0);
     while (peer_count(&P) < 6)
         t_sleep_ms(1);
@@ -383,9 +382,7 @@ static void refresh_diag(void)
     int dev, plan, h, bad = 0;
     int64_t t0, t1, t_post, t_zero;
 
-    t_scenario = "refresh diag";
-    dev = mbfb_dev_open(open_bus(), 1);
-    plan = mbfb_plan_open(dev);
+    plan = open_plan("refresh diag", &dev);
     d = t_diag(dev);
     CHECK_EQ(d.refreshes, 0);
     CHECK_EQ(d.refresh_us, 0);

@@ -75,26 +75,90 @@ def frames(sim):
     return [(f["dir"], f["hex"]) for f in sim.log(clear=True)]
 
 
-class RawPort:
-    """A bare serial master (pyserial) to put exact bytes on the line and read what comes."""
+def reply_length(got: bytes):
+    """The length of the whole Modbus reply that `got` begins, once its first bytes tell it
+    (RTU: by the function code and byte count; ASCII: up to its CR LF), else None."""
+    if got[:1] == b":":
+        end = got.find(b"\r\n")
+        return None if end < 0 else end + 2
+    if len(got) < 3:
+        return None
+    fc = got[1]
+    if fc & 0x80:
+        return 5                                    # exception: address, fc, code, CRC
+    if fc in (1, 2, 3, 4):
+        return 5 + got[2]                           # address, fc, byte count, data, CRC
+    if fc in (5, 6, 15, 16):
+        return 8                                    # the echo of address and value/count
+    return None
 
-    def __init__(self, port, baud=9600, stop=2):
+
+class RawPort:
+    """A bare serial master (pyserial) to put exact bytes on the line and read what comes.
+    Given the simulator (`sim`, or a port string and `sim=`), a request that gets no answer
+    is known as such from the simulator's frame log; without it, silence is QUIET s."""
+
+    QUIET = 0.3          # after the simulator logged the request (or, without it, after the
+                         # send) this long with no reply and no byte is silence
+    GAP = 0.5            # bytes that stop short of a whole reply: cut after this pause
+
+    def __init__(self, port, baud=9600, stop=2, sim=None):
         import serial
+        if hasattr(port, "port"):
+            port, sim = port.port, port
+        self.sim = sim
         # The simulator hears only a master whose port matches the device's line (a pty
         # shows it the baud; stop bits need not match): 8N2 by default, as the default line.
         self.ser = serial.Serial(port, baud, stopbits=stop, timeout=0)
 
-    def xfer(self, data, wait=0.3):
-        """Send bytes (or a hex string); return everything received within `wait` s."""
-        import time
+    def _send(self, data):
         if isinstance(data, str):
             data = bytes.fromhex(data)
         self.ser.reset_input_buffer()
         self.ser.write(data)
         self.ser.flush()
-        end, got = time.monotonic() + wait, b""
-        while time.monotonic() < end:
-            got += self.ser.read(512)
+
+    def xfer(self, data, wait=None, timeout=10.0, by_log=True):
+        """Send bytes (or a hex string); return the answer. `wait`: a master with that
+        timeout, everything received within `wait` s (for the tests of late replies).
+        Otherwise it waits on what it knows, within `timeout` s however long a loaded machine
+        holds either side back: with the simulator, the reply it logs (read to its length,
+        noise and cuts included) or, once it logged the request, none for QUIET s (silence);
+        without, a whole reply (reply_length), or what came once the line paused GAP s,
+        or QUIET s with nothing. by_log=False: not the log (the test holds the simulator's
+        control socket meanwhile), as without a simulator."""
+        import time
+        sim = self.sim if by_log and wait is None else None
+        n0 = len(sim.log(clear=False)) if sim is not None else 0
+        self._send(data)
+        now = time.monotonic()
+        got, start, last, heard, need = b"", now, now, None, None
+        while now - start < timeout:
+            chunk = self.ser.read(512)
+            now = time.monotonic()
+            if chunk:
+                got, last = got + chunk, now
+            if wait is not None:
+                if now - start >= wait:
+                    break
+            elif sim is not None:
+                if need is None:
+                    dirs = [(f["dir"], f["hex"]) for f in sim.log(clear=False)[n0:]]
+                    tx = [bytes.fromhex(h) for d, h in dirs if d == "tx"]
+                    if tx:
+                        need = len(tx[-1])
+                    elif heard is None and any(d == "rx" for d, _ in dirs):
+                        heard = now
+                if need is not None and len(got) >= need:
+                    break
+                if need is None and heard is not None and now - heard > self.QUIET:
+                    break
+            elif got:
+                need = reply_length(got)
+                if (need is not None and len(got) >= need) or now - last > self.GAP:
+                    break
+            elif now - start > self.QUIET:
+                break
             time.sleep(0.005)
         return got
 
@@ -105,12 +169,8 @@ class RawPort:
         however long a loaded machine holds either side back (a fixed wait took a reply that
         came late for a missing one). Clears the simulator's log."""
         import time
-        if isinstance(data, str):
-            data = bytes.fromhex(data)
         sim.log()                           # clear: the answer is the next "tx" entry
-        self.ser.reset_input_buffer()
-        self.ser.write(data)
-        self.ser.flush()
+        self._send(data)
         end, tx = time.monotonic() + timeout, []
         while not tx and time.monotonic() < end:
             tx = [f["hex"] for f in sim.log() if f["dir"] == "tx"]
@@ -128,15 +188,27 @@ class RawPort:
 
 @pytest.fixture
 def raw_factory():
-    """raw_factory(port) -> RawPort; closed after the test."""
+    """raw_factory(port or simulator) -> RawPort; closed after the test."""
     ports = []
 
-    def make(port, baud=9600, stop=2):
-        ports.append(RawPort(port, baud, stop))
+    def make(port, baud=9600, stop=2, sim=None):
+        ports.append(RawPort(port, baud, stop, sim))
         return ports[-1]
     yield make
     for p in ports:
         p.close()
+
+
+def pymodbus_writes(sim, client):
+    """What a pymodbus client writes through the simulator of test_tcp and test_rtutcp (an
+    MV-D94 at 1, an FDC-100 at 3, an MT-S9 at 5), checked on the devices: the MV-D94's SV
+    (FC06), four FDC words read, the MT-S9's REAL (FC16, low word first)."""
+    assert not client.write_register(0, 1234, slave=1).isError()
+    assert sim.ctl("get", addr=1, reg="SV")["raw"] == 1234
+    rr = client.read_holding_registers(128, count=4, slave=3)
+    assert not rr.isError() and len(rr.registers) == 4
+    assert not client.write_registers(0, [0x000A, 0x0102], slave=5).isError()
+    assert sim.ctl("get", addr=5, reg="REAL")["raw"] == 16908298
 
 
 def crc(frame_hex):

@@ -182,7 +182,7 @@ def test_serial_device_mode():
 
 def test_frame_end_rules(raw_factory):
     with simctl.Simulator(["mvd94:1:SV=1000"]) as sim:
-        raw = raw_factory(sim.port)
+        raw = raw_factory(sim)
         req = bytes.fromhex(READ)
         # a request written in two pieces 1 ms apart is still one request (length-aware;
         # up to 50 ms of silence): as the simulator logged it, unless this process was held
@@ -211,7 +211,7 @@ def test_address_alone_then_a_stall_is_still_one_request(raw_factory):
     from one byte, so the simulator waits as for a short frame). Before: 'short frame', then
     'bad CRC', and no reply."""
     with simctl.Simulator(["mvd94:1:SV=1000"]) as sim:
-        raw = raw_factory(sim.port)
+        raw = raw_factory(sim)
         req = bytes.fromhex(READ)
         for _ in range(5):          # a try whose writes were > 40 ms apart (this process held
             n0 = len(sim.log())     # back) says nothing: the simulator may rightly split it
@@ -232,7 +232,7 @@ def test_pace_inside_the_simulator(raw_factory):
     """--ptyline none: replies leave at the character time (+ 1..10 ms turnaround)."""
     with simctl.Simulator(["mvd94:1:SV=1000"], pace=True, baud=2400,
                           extra=["--ptyline", "none"]) as sim:
-        raw = raw_factory(sim.port, 2400)
+        raw = raw_factory(sim, 2400)
         char = 11 / 2400
         t0 = time.monotonic()
         raw.ser.write(bytes.fromhex(READ))
@@ -257,7 +257,7 @@ def test_pace_with_ptyline_counts_the_line():
         assert stats["total"]["utilisation"] > 0
         assert stats["reply_latency"]["min_us"] >= 1000      # the 1..10 ms turnaround
         # a master that fires the next request right after the reply: short gaps counted
-        raw = RawPort(sim.port)
+        raw = RawPort(sim)
         try:
             for _ in range(5):
                 raw.ser.write(bytes.fromhex(READ))

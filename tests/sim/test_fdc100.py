@@ -31,13 +31,13 @@ def eror(s, addr=1):
 def test_example1_download_defaults(sim, raw_factory):
     req = "01 10 00 00 00 34 68 " + " ".join(w[:2] + " " + w[2:] for w in EX1_WORDS.split())
     assert crc(req).endswith("8E C3")                  # the manual's Example 1
-    assert hexu(raw_factory(sim.port).xfer(crc(req))) == "01 10 00 00 00 34 C1 DE"
+    assert hexu(raw_factory(sim).xfer(crc(req))) == "01 10 00 00 00 34 C1 DE"
     assert sim.ctl("get", addr=1, reg="SP1")["eng"] == 25.0
     assert sim.ctl("get", addr=1, reg="REHI")["eng"] == 100.0
     assert sim.ctl("get", addr=1, reg="SP1H")["eng"] == 537.8
     # Example 1 also set PARI = 0 (Even): on this 8N1 line the unit now hears only parity
     # errors and stays silent, as a real one would, until PARI is None again.
-    assert raw_factory(sim.port).xfer("01 03 00 80 00 04 45 E1") == b""
+    assert raw_factory(sim).xfer("01 03 00 80 00 04 45 E1") == b""
     sim.ctl("set", addr=1, reg="PARI", raw=2)
 
 
@@ -52,7 +52,7 @@ def test_download_block_is_checked_as_one_set(raw_factory):
         body = "01 10 00 00 00 34 68 " + " ".join(w[:2] + " " + w[2:] for w in [sp1] + words[1:])
         return crc(body)
     with simctl.Simulator(["fdc100:1"], fmt="8N1") as s:
-        raw = raw_factory(s.port)
+        raw = raw_factory(s)
         s.ctl("set", addr=1, reg="SP1H", raw=20500)    # SP1 may not exceed 20500 now
         assert hexu(raw.xfer(block("6400"))) == crc("01 90 03")     # above the block's 6321
         assert s.ctl("get", addr=1, reg="SP1H")["raw"] == 20500     # nothing written
@@ -64,7 +64,7 @@ def test_download_block_is_checked_as_one_set(raw_factory):
 
 def test_example2_aliases_128_and_64(sim, raw_factory):
     sim.ctl("plant", addr=1, hold=True, temp=25.0)
-    raw = raw_factory(sim.port)
+    raw = raw_factory(sim)
     high = raw.xfer("01 03 00 80 00 04 45 E1")
     low = raw.xfer("01 03 00 40 00 04 45 DD")
     assert high[:3] == bytes([1, 3, 8]) and high[3:5] == bytes.fromhex("4F19")  # PV 25.0
@@ -75,8 +75,8 @@ def test_example2_aliases_128_and_64(sim, raw_factory):
 
 
 def test_example6_reads_80_words_and_not_81(sim, raw_factory):
-    raw = raw_factory(sim.port)
-    got = raw.xfer("01 03 00 00 00 50 45 F6", wait=0.5)
+    raw = raw_factory(sim)
+    got = raw.xfer("01 03 00 00 00 50 45 F6")
     assert got[:3] == bytes([1, 3, 160]) and len(got) == 165
     assert hexu(raw.xfer(crc("01 03 00 00 00 51"))) == crc("01 83 03")
 
@@ -95,7 +95,7 @@ def test_example6_reads_80_words_and_not_81(sim, raw_factory):
     ("01 06 00 48 12 34", "01 86 03 02 61", 15),      # not a command code
 ])
 def test_exceptions_and_eror(sim, raw_factory, request_hex, reply_hex, code):
-    raw = raw_factory(sim.port)
+    raw = raw_factory(sim)
     sim.ctl("set", addr=1, reg="EROR", raw=0)
     assert hexu(raw.xfer(crc(request_hex))) == reply_hex
     assert eror(sim) == code
@@ -104,13 +104,13 @@ def test_exceptions_and_eror(sim, raw_factory, request_hex, reply_hex, code):
 def test_fc16_is_all_or_nothing(sim, raw_factory):
     """One bad word (SP1 above SP1H) rejects the whole block: SP2 keeps its value."""
     before = sim.ctl("get", addr=1, reg="SP2")["raw"]
-    got = raw_factory(sim.port).xfer(crc("01 10 00 00 00 02 04 FF FF 4E 1F"))
+    got = raw_factory(sim).xfer(crc("01 10 00 00 00 02 04 FF FF 4E 1F"))
     assert hexu(got) == crc("01 90 03")
     assert sim.ctl("get", addr=1, reg="SP2")["raw"] == before
 
 
 def test_example5_manual_mode_and_example3_reset(sim, raw_factory):
-    raw = raw_factory(sim.port)
+    raw = raw_factory(sim)
     assert hexu(raw.xfer("01 06 00 48 68 27 66 06")) == "01 06 00 48 68 27 66 06"
     assert sim.ctl("get", addr=1, reg="MODE")["raw"] >> 8 == 3
     inst = instrument(sim.port, 1, stop=1)
@@ -123,7 +123,7 @@ def test_example5_manual_mode_and_example3_reset(sim, raw_factory):
 
 
 def test_example4_autotune_shows_then_returns(sim, raw_factory):
-    raw = raw_factory(sim.port)
+    raw = raw_factory(sim)
     assert hexu(raw.xfer("01 06 00 48 68 28 26 02")) == "01 06 00 48 68 28 26 02"
     inst = instrument(sim.port, 1, stop=1)
     assert inst.read_register(70) >> 8 == 2
@@ -132,7 +132,7 @@ def test_example4_autotune_shows_then_returns(sim, raw_factory):
 
 
 def test_example7_calibration_unlock(sim, raw_factory):
-    raw = raw_factory(sim.port)
+    raw = raw_factory(sim)
     assert hexu(raw.xfer(crc("01 06 00 37 4E 20"))) == "01 86 03 02 61"
     assert hexu(raw.xfer("01 06 00 48 68 2D E6 01")) == "01 06 00 48 68 2D E6 01"
     assert hexu(raw.xfer(crc("01 06 00 37 4E 20"))) == crc("01 06 00 37 4E 20")
@@ -141,7 +141,7 @@ def test_example7_calibration_unlock(sim, raw_factory):
 
 
 def test_lock_levels(sim, raw_factory):
-    raw = raw_factory(sim.port)
+    raw = raw_factory(sim)
     sim.ctl("set", addr=1, reg="LOCK", raw=1)
     assert hexu(raw.xfer(crc("01 06 00 01 4E 83"))) == "01 86 03 02 61"    # SP2 locked
     assert eror(sim) == 14
@@ -172,7 +172,7 @@ def test_startup_value_and_thermal_dynamics(sim):
 
 
 def test_broadcast_applied_without_reply(sim, raw_factory):
-    raw = raw_factory(sim.port)
+    raw = raw_factory(sim)
     assert raw.xfer(crc("00 06 00 49 00 07")) == b""
     assert sim.ctl("get", addr=1, reg="JOB1")["raw"] == 7
     assert sim.ctl("get", addr=3, reg="JOB1")["raw"] == 7

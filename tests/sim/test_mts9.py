@@ -1,5 +1,7 @@
 """MT-S9 counter/meter against the MT-S9 manual: the three framings, 32-bit
 values low word first, counting, Over-Flow, Decimal Set and the Author gate."""
+import time
+
 import minimalmodbus
 import pytest
 
@@ -21,7 +23,7 @@ def hexu(data):
 
 
 def test_rtu_manual_frames(rtu, raw_factory):
-    raw = raw_factory(rtu.port)
+    raw = raw_factory(rtu)
     rtu.ctl("set", addr=1, reg="Real Data", raw=0x00020000)      # words 0000 0002 on the wire
     assert hexu(raw.xfer("01 03 00 00 00 02 C4 0B")) == "01 03 04 00 00 00 02 7B F2"
     assert hexu(raw.xfer("01 06 00 00 00 02 08 0B")) == "01 06 00 00 00 02 08 0B"
@@ -65,7 +67,7 @@ def test_counts_at_its_rate_and_overflows_past_4_digits(rtu):
 
 
 def test_author_gates_setup_registers(rtu, raw_factory):
-    raw = raw_factory(rtu.port)
+    raw = raw_factory(rtu)
     assert hexu(raw.xfer(crc("01 06 00 05 00 02"))) == crc("01 86 03")     # Author 0: locked
     assert hexu(raw.xfer(crc("01 06 00 09 00 01"))) == crc("01 06 00 09 00 01")
     assert hexu(raw.xfer(crc("01 06 00 05 00 02"))) == crc("01 06 00 05 00 02")  # Decimal 2
@@ -87,7 +89,7 @@ def test_author_gates_setup_registers(rtu, raw_factory):
     ("01 06 00 0A 00 00", "01 86 02"),
 ])
 def test_exceptions(rtu, raw_factory, request_hex, reply_hex):
-    assert hexu(raw_factory(rtu.port).xfer(crc(request_hex))) == crc(reply_hex)
+    assert hexu(raw_factory(rtu).xfer(crc(request_hex))) == crc(reply_hex)
 
 
 def lrc_frame(body_hex):
@@ -99,7 +101,7 @@ def lrc_frame(body_hex):
 def test_type_register_switches_framing(rtu, raw_factory):
     """Type = 0 (ASCII) on an RTU line: the meter answers the write, then is deaf to RTU and
     answers ASCII on the same line (the other meter still answers RTU)."""
-    raw = raw_factory(rtu.port)
+    raw = raw_factory(rtu)
     rtu.ctl("set", addr=2, reg="Author", raw=5)
     assert hexu(raw.xfer(crc("02 06 00 08 00 00"))) == crc("02 06 00 08 00 00")
     assert raw.xfer(crc("02 03 00 08 00 01")) == b""
@@ -114,7 +116,7 @@ def test_three_framings_on_one_line(raw_factory):
     hears every byte and answers only frames of its own framing addressed to it."""
     with simctl.Simulator(["mvd94:1:SV=123", "mts9:2:framing=ascii", "mts9:3:framing=nocrc"],
                           fmt="8N2") as sim:
-        raw = raw_factory(sim.port, stop=2)
+        raw = raw_factory(sim, stop=2)
         assert hexu(raw.xfer(crc("01 03 00 00 00 01"))) == crc("01 03 02 00 7B")
         assert raw.xfer(lrc_frame("02 03 00 08 00 01")) == lrc_frame("02 03 02 00 00")
         # no CRC at all, or a wrong one: the no-CRC meter answers, once, with a real CRC
@@ -132,14 +134,18 @@ def test_three_framings_on_one_line(raw_factory):
         # the frame log says which receiver took each frame
         sim.log(clear=True)
         raw.xfer(lrc_frame("02 03 00 08 00 01"))
-        got = {(f["dir"], f.get("framing"), f.get("info", "")) for f in sim.log(clear=True)}
+        # (the RTU receivers judge the frame once the line has been quiet: after the reply)
+        got, end = set(), time.monotonic() + 10
+        while ("rx", "rtu", "bad CRC") not in got and time.monotonic() < end:
+            got |= {(f["dir"], f.get("framing"), f.get("info", "")) for f in sim.log(clear=True)}
+            time.sleep(0.01)
         assert ("rx", "ascii", "") in got and ("tx", "ascii", "") in got, got
         assert ("rx", "rtu", "bad CRC") in got, got
 
 
 def test_nocrc_manual_frames(raw_factory):
     with simctl.Simulator(["mts9:1:framing=nocrc"], fmt="8N1") as sim:
-        raw = raw_factory(sim.port)
+        raw = raw_factory(sim)
         # FC03: the corrected no-CRC reply (value 0) carries the real CRC FA 33
         assert hexu(raw.xfer("01 03 00 00 00 02 00 00")) == "01 03 04 00 00 00 00 FA 33"
         assert hexu(raw.xfer("01 06 00 00 00 02 00 00")) == "01 06 00 00 00 02 08 0B"

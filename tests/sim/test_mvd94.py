@@ -42,7 +42,7 @@ def test_manual_fc04_example_byte_for_byte(sim):
 
 def test_manual_fc06_example_echo(sim, raw_factory):
     """Manual 6.3: write SV = 500 -> echo 01 06 00 00 01 F4 89 DD; then restore."""
-    raw = raw_factory(sim.port)
+    raw = raw_factory(sim)
     assert raw.xfer("01 06 00 00 01 F4 89 DD").hex(" ").upper() == "01 06 00 00 01 F4 89 DD"
     assert sim.ctl("get", addr=1, reg="SV")["raw"] == 500
     res = mbpoll(sim.port, "-a", 1, "-r", 0, write=[1000])
@@ -84,20 +84,20 @@ def test_negative_values_twos_complement(sim):
     ("01 06 00 06 0B B9", "01 86 03"),          # PB 3001 > 3000
 ])
 def test_exceptions_per_manual(sim, raw_factory, request_hex, reply_hex):
-    raw = raw_factory(sim.port)
+    raw = raw_factory(sim)
     assert raw.xfer(crc(request_hex)).hex(" ").upper() == crc(reply_hex)
 
 
 def test_exception_vectors_from_spec(sim, raw_factory):
-    raw = raw_factory(sim.port)
+    raw = raw_factory(sim)
     assert raw.xfer(crc("01 03 10 00 00 01")).hex(" ").upper() == "01 83 02 C0 F1"
     assert raw.xfer(crc("01 05 00 00 FF 00")).hex(" ").upper() == "01 85 01 83 50"
 
 
 def test_window_edges_answer(sim, raw_factory):
     """0x7E words from 0 and 3 words at 0x1000 are legal; undefined words read as 0."""
-    raw = raw_factory(sim.port)
-    got = raw.xfer(crc("01 03 00 00 00 7E"), wait=0.5)
+    raw = raw_factory(sim)
+    got = raw.xfer(crc("01 03 00 00 00 7E"))
     assert got[:3] == bytes([1, 3, 0xFC]) and len(got) == 3 + 0xFC + 2
     assert got[3 + 2 * 0x22:-2] == bytes(2 * (0x7E - 0x22))
     got = raw.xfer(crc("01 04 10 00 00 03"))
@@ -106,7 +106,7 @@ def test_window_edges_answer(sim, raw_factory):
 
 
 def test_silence_bad_crc_foreign_and_broadcast(sim, raw_factory):
-    raw = raw_factory(sim.port)
+    raw = raw_factory(sim)
     assert raw.xfer("01 03 00 00 00 01 84 0B") == b""            # bad CRC
     assert raw.xfer(crc("09 03 00 00 00 01")) == b""             # nobody at 9
     assert raw.xfer(crc("00 03 00 00 00 01")) == b""             # broadcast read: ignored
@@ -124,7 +124,7 @@ def test_silence_bad_crc_foreign_and_broadcast(sim, raw_factory):
 
 
 def test_address_change_moves_the_slave(sim, raw_factory):
-    raw = raw_factory(sim.port)
+    raw = raw_factory(sim)
     assert raw.xfer(crc("07 06 00 1B 00 08")).hex(" ").upper() == crc("07 06 00 1B 00 08")
     assert raw.xfer(crc("07 03 00 1B 00 01")) == b""
     assert raw.xfer(crc("08 03 00 1B 00 01")).hex(" ").upper() == crc("08 03 02 00 08")
@@ -133,7 +133,7 @@ def test_address_change_moves_the_slave(sim, raw_factory):
 
 def test_baud_change_makes_it_deaf(sim, raw_factory):
     """BAUD 0x1F (19.2K) while the line runs 9600: the unit hears garbage and stays silent."""
-    raw = raw_factory(sim.port)
+    raw = raw_factory(sim)
     assert raw.xfer(crc("07 06 00 1C 00 1F")).hex(" ").upper() == crc("07 06 00 1C 00 1F")
     assert raw.xfer(crc("07 03 00 00 00 01")) == b""
     sim.ctl("set", addr=7, reg="BAUD", raw=0x1E)

@@ -8,7 +8,7 @@ import time
 from pymodbus import FramerType
 from pymodbus.client import ModbusTcpClient
 
-from conftest import sim_fixture
+from conftest import pymodbus_writes, sim_fixture
 from modsim import frames
 
 sim = sim_fixture(["mvd94:1:SV=1000", "fdc100:3", "mts9:5"], transport="rtu-tcp")
@@ -53,12 +53,7 @@ def test_pymodbus_rtu_framer_reads_and_writes(sim):
         sim.ctl("set", addr=1, reg="SV", raw=1000)
         rr = c.read_holding_registers(0, count=1, slave=1)
         assert not rr.isError() and rr.registers == [1000]
-        assert not c.write_register(0, 1234, slave=1).isError()
-        assert sim.ctl("get", addr=1, reg="SV")["raw"] == 1234
-        rr = c.read_holding_registers(128, count=4, slave=3)
-        assert not rr.isError() and len(rr.registers) == 4
-        assert not c.write_registers(0, [0x000A, 0x0102], slave=5).isError()
-        assert sim.ctl("get", addr=5, reg="REAL")["raw"] == 16908298
+        pymodbus_writes(sim, c)
     finally:
         c.close()
 

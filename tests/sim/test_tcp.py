@@ -7,7 +7,7 @@ import time
 import pytest
 from pymodbus.client import ModbusTcpClient
 
-from conftest import REQUIRE, mbpoll_values, sim_fixture
+from conftest import REQUIRE, mbpoll_values, pymodbus_writes, sim_fixture
 
 sim = sim_fixture(["mvd94:1:SV=1000", "fdc100:3", "mts9:5"], transport="tcp")
 
@@ -31,12 +31,7 @@ def test_pymodbus_reads_and_writes(sim, client):
     assert not rr.isError() and rr.registers == [1000]
     rr = client.read_input_registers(0x1000, count=1, slave=1)
     assert not rr.isError() and -100 < rr.registers[0] < 2000
-    assert not client.write_register(0, 1234, slave=1).isError()
-    assert sim.ctl("get", addr=1, reg="SV")["raw"] == 1234
-    rr = client.read_holding_registers(128, count=4, slave=3)
-    assert not rr.isError() and len(rr.registers) == 4
-    assert not client.write_registers(0, [0x000A, 0x0102], slave=5).isError()
-    assert sim.ctl("get", addr=5, reg="REAL")["raw"] == 16908298
+    pymodbus_writes(sim, client)
     rr = client.write_registers(0, [1, 2], slave=1)          # no FC16 on the MV-D94
     assert rr.isError() and rr.exception_code == 1
 

@@ -174,7 +174,7 @@ def init_rank(kind: str, name: str) -> int:
 def check_line(kind, addr, dev, line):
     """The line's baud and format must be ones the device can speak (its map's "line"); the
     stop bits need not match (a UART checks only the first stop bit)."""
-    spec = dev.MAP.line if hasattr(dev, "MAP") else {}
+    spec = dev.MAP.line if dev.MAP is not None else {}
     fmt = f"{line.data_bits}{line.parity}{line.stop_bits}"
     if spec.get("bauds") and line.baud not in spec["bauds"]:
         raise ValueError(f"{kind}:{addr} cannot run at {line.baud} baud (it speaks "

@@ -7,13 +7,12 @@ M = A * 10^d + offset (section 3.6). CMND (72) commands: reset, manual, auto-tun
 """
 from __future__ import annotations
 
-from .regmap import ILLEGAL_ADDRESS, ILLEGAL_VALUE, Device, ModbusError, load_map, regs_from_map
+from .regmap import ILLEGAL_ADDRESS, ILLEGAL_VALUE, Device, ModbusError, load_map
 from .thermal import Loop
 
 MAP = load_map("fdc100")
 # Registers (access RW, R, MAN = R/W in manual mode, CAL = R/W after CMND = 0x682D), scales,
 # ranges and Example-1 defaults: maps/fdc100.json.
-REGS = regs_from_map(MAP)
 ALIASES = {a: r.addr for r in MAP.registers for a in r.aliases_at}     # 128..131 -> 64..67
 BAUDS = tuple(sorted(MAP.bauds(), key=MAP.bauds().get))               # index = BAUD code
 PARITY = "".join(sorted(MAP.table("PARI"), key=MAP.table("PARI").get))  # "EON": PARI 0 = Even
@@ -42,9 +41,7 @@ class Fdc100(Device):
     """FDC Series 100 (BTC-9100) PID controller."""
 
     KIND = "fdc100"
-    REGS = REGS
     MAP = MAP
-    FUNCTIONS = MAP.function_codes
 
     def __init__(self, addr, line, rng):
         super().__init__(addr, line, rng)

@@ -7,10 +7,9 @@ Author. The manual documents no exceptions, defaults or broadcast; the choices a
 """
 from __future__ import annotations
 
-from .regmap import ILLEGAL_VALUE, Device, ModbusError, load_map, regs_from_map
+from .regmap import ILLEGAL_VALUE, Device, ModbusError, load_map
 
 MAP = load_map("mts9")
-REGS = regs_from_map(MAP)
 BAUDS = tuple(sorted(MAP.bauds(), key=MAP.bauds().get))         # index = code
 TYPES = {k.lower(): v for k, v in MAP.table("TYPE").items()}     # ascii 0, rtu 1, nocrc 2
 NAMES = {v: k for k, v in TYPES.items()}
@@ -27,9 +26,7 @@ class MtS9(Device):
     """MT-S9 96x48 counter/meter."""
 
     KIND = "mts9"
-    REGS = REGS
     MAP = MAP
-    FUNCTIONS = MAP.function_codes
 
     def __init__(self, addr, line, rng):
         super().__init__(addr, line, rng)

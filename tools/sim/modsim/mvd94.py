@@ -9,11 +9,10 @@ The registers, windows and codes come from the map; this file holds the behaviou
 """
 from __future__ import annotations
 
-from .regmap import ILLEGAL_ADDRESS, Device, ModbusError, load_map, regs_from_map
+from .regmap import ILLEGAL_ADDRESS, Device, ModbusError, load_map
 from .thermal import Loop
 
 MAP = load_map("mvd94")
-REGS = regs_from_map(MAP)
 BAUD_CODES = {code: bps for bps, code in MAP.bauds().items()}      # code -> bps
 ACT_DIR = MAP.code("ACT", "DIR")
 HOLDING_END = MAP.function(3)["window"][1]      # FC03 window (manual 6.1)
@@ -27,9 +26,7 @@ class MvD94(Device):
     """SetPro MV-D94 temperature controller (also 'vd': the VD map is identical)."""
 
     KIND = "mvd94"
-    REGS = REGS
     MAP = MAP
-    FUNCTIONS = MAP.function_codes
 
     def __init__(self, addr, line, rng):
         super().__init__(addr, line, rng)

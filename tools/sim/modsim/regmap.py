@@ -89,11 +89,19 @@ def regs_from_map(m) -> tuple:
 
 
 class Device:
-    """A Modbus slave model. Subclasses set KIND, REGS and FUNCTIONS and override hooks."""
+    """A Modbus slave model. Subclasses set KIND and MAP (the device's register map: REGS
+    and FUNCTIONS follow from it) and override hooks."""
 
     KIND = "?"
+    MAP = None
     REGS: tuple = ()
     FUNCTIONS = (3, 6)               # supported function codes; anything else -> exception 01
+
+    def __init_subclass__(cls, **kw):
+        super().__init_subclass__(**kw)
+        if "MAP" in cls.__dict__:
+            cls.REGS = regs_from_map(cls.MAP)
+            cls.FUNCTIONS = cls.MAP.function_codes
 
     def __init__(self, addr: int, line, rng):
         self.addr = addr
