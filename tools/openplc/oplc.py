@@ -94,7 +94,8 @@ class Scratch:
             raise RuntimeError("refusing to start the OpenPLC runtime outside a private network "
                                "namespace (its servers bind every interface): run under tools/openplc/netns.sh")
         self.log = open(os.path.join(self.dir, "runtime.log"), "w+")
-        self.proc = subprocess.Popen(["./core/openplc"], cwd=self.web, stdout=self.log,
+        # stdbuf: its printf lines reach the log as they are written, also when it dies
+        self.proc = subprocess.Popen(["stdbuf", "-oL", "./core/openplc"], cwd=self.web, stdout=self.log,
                                      stderr=subprocess.STDOUT, start_new_session=True,
                                      preexec_fn=_die_with_parent)
         deadline = time.monotonic() + timeout
@@ -107,17 +108,22 @@ class Scratch:
                     raise RuntimeError("OpenPLC runtime did not start:\n" + self.runtime_log())
                 time.sleep(0.1)
         if modbus_port:
-            # The interactive server may drop a command sent right after it starts listening:
-            # ask again (only while the port is still closed) until the deadline.
+            # The interactive server may drop a command sent right after it starts listening,
+            # and a second start_modbus stops the server the first one is starting and starts
+            # another (interactive_server.cpp), which may find the port still bound and leave
+            # it closed: ask again only while the runtime's log shows no start_modbus taken.
+            taken = f"Issued start_modbus() command to start on port: {modbus_port}"
             deadline = time.monotonic() + timeout
+            self.command(f"start_modbus({modbus_port})")
             while True:
-                self.command(f"start_modbus({modbus_port})")
                 try:
                     return wait_port(modbus_port, 1.0)
                 except RuntimeError:
                     if self.proc.poll() is not None or time.monotonic() > deadline:
                         raise RuntimeError(f"Modbus server not up on {modbus_port}:\n"
                                            + self.runtime_log())
+                    if taken not in self.logs():
+                        self.command(f"start_modbus({modbus_port})")
 
     def command(self, cmd):
         """Send one command to the runtime's interactive server (interactive_server.cpp)."""
@@ -128,6 +134,19 @@ class Scratch:
                 return s.recv(4096).decode(errors="replace")
             except socket.timeout:
                 return ""
+
+    def logs(self):
+        """The runtime's own log buffer (its runtime_logs() command), read to its end."""
+        out = b""
+        with socket.create_connection(("127.0.0.1", INTERACTIVE_PORT), timeout=5) as s:
+            s.sendall(b"runtime_logs()\n")
+            s.settimeout(0.5)
+            try:
+                while chunk := s.recv(65536):
+                    out += chunk
+            except socket.timeout:
+                pass
+        return out.decode(errors="replace")
 
     def runtime_log(self):
         if not self.log:
