@@ -4,7 +4,8 @@
 #   tests/kernel/gpio_sim.sh CACHE_DIR RELEASE       (RELEASE: e.g. 6.1.0-56-amd64)
 # From Debian's packages of that very kernel, downloaded with `apt-get download` and unpacked
 # with `dpkg-deb -x` into CACHE_DIR (never installed): linux-headers-RELEASE and its -common,
-# linux-kbuild-6.x and linux-source-6.x at the image's version. The module is gpio-sim.c with
+# linux-kbuild-6.x and linux-source-6.x at the image's version (or, when the archive no longer
+# has them, at another Debian revision of its upstream version). The module is gpio-sim.c with
 # kernel/irq/irq_sim.c linked in, out of tree against those headers (Kbuild, the host's gcc: the
 # image's compiler on Debian 12), with one change: irq_sim's handler calls
 # generic_handle_irq(irq) instead of handle_simple_irq(irq_to_desc(irq)), the same call through
@@ -42,8 +43,20 @@ flavour=${release##*-}                                                # amd64
 abi=${release%-"$flavour"}                                            # 6.1.0-56
 rm -rf "$cache/deb" "$cache/root" "$cache/mod" "$cache/ready"
 mkdir -p "$cache/deb" "$cache/root" "$cache/mod"
+# kbuild (the build tools) and source (three files) are the kernel's release, not its ABI:
+# when the archive has moved them to another Debian revision of the same upstream version
+# (a security upload under way: 6.1.192-3 beside an image still at 6.1.192-2), take that one.
+same_release() {   # same_release PACKAGE: $version if the archive has it, else its newest VER-*
+    apt-cache madison "$1" 2>/dev/null | awk -F'|' -v v="$version" -v up="${version%-*}-" '
+        { gsub(/ /, "", $2) } $2 == v { exact = 1 } index($2, up) == 1 && !any { any = $2 }
+        END { if (exact) print v; else if (any) print any }'
+}
+kbuild=$(same_release "linux-kbuild-$series")
+source=$(same_release "linux-source-$series")
+[ "${kbuild:-$version}" = "$version" ] && [ "${source:-$version}" = "$version" ] ||
+    echo "gpio-sim: linux-kbuild-$series ${kbuild:-?}, linux-source-$series ${source:-?} for the image's $version" >&2
 for p in "linux-headers-$release=$version" "linux-headers-$abi-common=$version" \
-         "linux-kbuild-$series=$version" "linux-source-$series=$version"; do
+         "linux-kbuild-$series=${kbuild:-$version}" "linux-source-$series=${source:-$version}"; do
     (cd "$cache/deb" && apt-get download -q "$p" >/dev/null 2>"$cache/apt.err") ||
         fail "apt-get download $p failed: $(tail -n1 "$cache/apt.err")"
 done
