@@ -9,8 +9,9 @@ exported with `git archive`, or the working tree: bench/wire_pace.py's Variant) 
 build of the shims (--shims: O0 = CMAKE_BUILD_TYPE Debug, as OpenPLC compiles them with the
 program; O2 = RelWithDebInfo), for Counter_MTS9 (MT-S9, 115200 8N1), TempCtrl_MVD94 and
 FDC_Controller (19200 8N2), each in wire_pace's `device_program` (one block, task 20 ms)
-with `Period := T#30s` ("steady": no new snapshot after the first refresh) and `T#0s`
-("pick-up"): the program is built as OpenPLC builds it (iec2c -f -l -p -r -R -a, g++ -O0,
+with `Period := T#30s` ("steady": no new snapshot after the first refresh), `T#1s`
+("published": a snapshot every second, so `Age` and `SettingsAge` are computed in the scans
+between, the steady scan of a block whose data are published) and `T#0s` ("pick-up"): the program is built as OpenPLC builds it (iec2c -f -l -p -r -R -a, g++ -O0,
 bench/wirepace/wp_host.cpp as the runtime) and run in real time under
 `valgrind --tool=callgrind --dump-after=config_run__*` against the simulator on a pty, so
 callgrind writes one profile per scan. The simulator answers at once (a pty is not paced):
@@ -24,6 +25,8 @@ reports, per scan:
 * shim calls: the inclusive Ir of every call the ST code makes to a `mbfb_*` function (a
   call from the program's generated code, not from the shims themselves or their worker
   thread), summed per scan; also per function (calls per scan, Ir per call);
+* published: the median of the block's Ir over the scans that took no new snapshot (Period
+  T#1s);
 * pick-up: the share of scans in which the program saw `Valid AND Age = T#0s` (it calls
   `wp_pub`): a new snapshot taken, judged and published in that scan.
 
@@ -50,7 +53,7 @@ import wire_pace as wp  # noqa: E402
 BLOCKS = (("Counter_MTS9", "mts9:1", 115200, "8N1"),
           ("TempCtrl_MVD94", "mvd94:1", 19200, "8N2"),
           ("FDC_Controller", "fdc100:1", 19200, "8N2"))
-MODES = (("steady", "T#30s"), ("pick-up", "T#0s"))
+MODES = (("steady", "T#30s"), ("published", "T#1s"), ("pick-up", "T#0s"))
 SHIMS = {"O0": "Debug", "O2": "RelWithDebInfo"}
 
 
@@ -183,6 +186,7 @@ def measure(v: wp.Variant, exe: str, block: str, dev: str, baud: int, fmt: str, 
     return {"n": n, "pub": sum(s["pub"] for s in scans) / n,
             "body": sum(s["body"] for s in scans) / n,
             "body_pub": statistics.mean(s["body"] for s in scans if s["pub"]) if picked else None,
+            "body_other_median": statistics.median(s["body"] for s in scans if not s["pub"]) if other else None,
             "shims": sum(s["shims"] for s in scans) / n,
             "shims_pub": statistics.mean(picked) if picked else None,
             "shims_other": statistics.mean(other) if other else None,
@@ -252,11 +256,14 @@ def report(res, variants, opts, blocks, args) -> None:
     print("|---" * (1 + len(MODES) * len(names) + len(opts) * len(names)) + "|")
     for block, *_ in blocks:
         cells = [f"{res[(n, o0, block, 'steady')]['body']:,.0f}".replace(",", " ") for n in names]
+        cells += [f"{res[(n, o0, block, 'published')]['body_other_median'] or 0:,.0f}".replace(",", " ")
+                  for n in names]
         cells += [f"{worst(res[(n, o0, block, 'pick-up')], 'body'):,.0f}".replace(",", " ") for n in names]
         cells += [f"{res[(n, o, block, 'steady')]['shims']:.0f} / {worst(res[(n, o, block, 'pick-up')], 'shims'):.0f}"
                   for o in opts for n in names]
         print(f"| `{block}` | " + " | ".join(cells) + " |")
-    print(f"\nMeans per scan; steady: over all scans; pick-up: over the scans that took a new snapshot. "
+    print(f"\nMeans per scan; steady: over all scans; published (Period T#1s): the median over the scans "
+          f"that took no new snapshot; pick-up: over the scans that took a new snapshot. "
           f"Block columns: the body's inclusive Ir with the shims at -{o0} (the ST code is -O0 in every run).")
     print("\n| variant | shims | block | case | scans | pick-ups | block Ir | in pick-up scans | shim calls Ir | "
           "in pick-up scans | in other scans | max | per function: calls/scan x Ir/call |")
