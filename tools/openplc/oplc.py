@@ -54,6 +54,7 @@ class Scratch:
         self.web = os.path.join(self.dir, "webserver")
         self.proc = None
         self.log = None
+        self.isock = None             # the one connection to the interactive server (start)
 
     def __enter__(self):
         return self
@@ -98,55 +99,56 @@ class Scratch:
         self.proc = subprocess.Popen(["stdbuf", "-oL", "./core/openplc"], cwd=self.web, stdout=self.log,
                                      stderr=subprocess.STDOUT, start_new_session=True,
                                      preexec_fn=_die_with_parent)
+        # One connection to the interactive server for every command: the runtime hands each
+        # accepted client's fd to its thread through one stack variable (interactive_server.cpp,
+        # startInteractiveServer; server.cpp's startServer alike), so two clients accepted close
+        # together can both be served on the second's fd, and the thread that finds it closed
+        # closes it again, by then perhaps the Modbus server's listening socket (seen: "Server:
+        # Listening on port 5502", then every connection refused). No probe connections either.
         deadline = time.monotonic() + timeout
         while True:
             try:
-                socket.create_connection(("127.0.0.1", INTERACTIVE_PORT), timeout=1).close()
+                self.isock = socket.create_connection(("127.0.0.1", INTERACTIVE_PORT), timeout=1)
                 break
             except OSError:
                 if self.proc.poll() is not None or time.monotonic() > deadline:
                     raise RuntimeError("OpenPLC runtime did not start:\n" + self.runtime_log())
                 time.sleep(0.1)
         if modbus_port:
-            # The interactive server may drop a command sent right after it starts listening,
-            # and a second start_modbus stops the server the first one is starting and starts
-            # another (interactive_server.cpp), which may find the port still bound and leave
-            # it closed: ask again only while the runtime's log shows no start_modbus taken.
+            # Its log says when the Modbus server listens. A command sent right after the
+            # interactive server starts listening may be dropped, and a second start_modbus
+            # stops the server the first one is starting: ask again only while the log shows
+            # no start_modbus taken.
             taken = f"Issued start_modbus() command to start on port: {modbus_port}"
+            listening = f"Server: Listening on port {modbus_port}"
             deadline = time.monotonic() + timeout
             self.command(f"start_modbus({modbus_port})")
             while True:
-                try:
-                    return wait_port(modbus_port, 1.0)
-                except RuntimeError:
-                    if self.proc.poll() is not None or time.monotonic() > deadline:
-                        raise RuntimeError(f"Modbus server not up on {modbus_port}:\n"
-                                           + self.runtime_log())
-                    if taken not in self.logs():
-                        self.command(f"start_modbus({modbus_port})")
+                log = self.logs()
+                if listening in log:
+                    return
+                if self.proc.poll() is not None or time.monotonic() > deadline:
+                    raise RuntimeError(f"Modbus server not up on {modbus_port}:\n" + self.runtime_log())
+                if taken not in log:
+                    self.command(f"start_modbus({modbus_port})")
+                time.sleep(0.2)
 
-    def command(self, cmd):
-        """Send one command to the runtime's interactive server (interactive_server.cpp)."""
-        with socket.create_connection(("127.0.0.1", INTERACTIVE_PORT), timeout=5) as s:
-            s.sendall(cmd.encode() + b"\n")
-            s.settimeout(0.5)
-            try:
-                return s.recv(4096).decode(errors="replace")
-            except socket.timeout:
-                return ""
+    def command(self, cmd, wait=0.5):
+        """Send one command to the runtime's interactive server (interactive_server.cpp) on the
+        one connection start() opened; returns what it answers within `wait` s of silence."""
+        self.isock.sendall(cmd.encode() + b"\n")
+        self.isock.settimeout(wait)
+        out = b""
+        try:
+            while chunk := self.isock.recv(65536):
+                out += chunk
+        except socket.timeout:
+            pass
+        return out.decode(errors="replace")
 
     def logs(self):
-        """The runtime's own log buffer (its runtime_logs() command), read to its end."""
-        out = b""
-        with socket.create_connection(("127.0.0.1", INTERACTIVE_PORT), timeout=5) as s:
-            s.sendall(b"runtime_logs()\n")
-            s.settimeout(0.5)
-            try:
-                while chunk := s.recv(65536):
-                    out += chunk
-            except socket.timeout:
-                pass
-        return out.decode(errors="replace")
+        """The runtime's own log buffer (its runtime_logs() command)."""
+        return self.command("runtime_logs()", wait=0.3)
 
     def runtime_log(self):
         if not self.log:
@@ -161,10 +163,13 @@ class Scratch:
             try:
                 self.command("quit()")
                 self.proc.wait(timeout=5)
-            except (OSError, subprocess.TimeoutExpired):
+            except (OSError, AttributeError, subprocess.TimeoutExpired):
                 os.kill(self.proc.pid, signal.SIGKILL)
                 self.proc.wait()
         self.proc = None
+        if self.isock:
+            self.isock.close()
+            self.isock = None
 
     def close(self):
         self.stop()
@@ -180,18 +185,6 @@ def _die_with_parent():
     import ctypes
     PR_SET_PDEATHSIG = 1
     ctypes.CDLL(None, use_errno=True).prctl(PR_SET_PDEATHSIG, signal.SIGKILL)
-
-
-def wait_port(port, timeout):
-    deadline = time.monotonic() + max(timeout, 0.5)
-    while True:
-        try:
-            socket.create_connection(("127.0.0.1", port), timeout=1).close()
-            return
-        except OSError:
-            if time.monotonic() > deadline:
-                raise RuntimeError(f"nothing listens on 127.0.0.1:{port}")
-            time.sleep(0.1)
 
 
 def wait(pred, timeout, what):
