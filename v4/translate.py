@@ -101,21 +101,19 @@ def struct_types(text):
     return types
 
 
-def struct_mirror(expr, cexpr, t, structs):
-    """The C mirror of structure `expr` of type t (a structure field that is itself a
-    structure gets a nested mirror): member declarations, copy-in, copy-out."""
+def mirror(expr, cexpr, t, structs):
+    """The C mirror of `expr` of type t, at `cexpr`: its C type (a structure's is a structure
+    of its fields' mirrors, nested for a field that is itself a structure), copy-in, copy-out."""
+    if t not in structs:
+        return (f"::mbfb_v4::ctype_t<decltype({expr})>", [f"::mbfb_v4::to_c({expr}, {cexpr});"],
+                [f"::mbfb_v4::from_c({cexpr}, {expr});"])
     members, into, back = [], [], []
     for f, ft in structs[t]:
-        if ft in structs:
-            m, i, b = struct_mirror(f"{expr}.{f}", f"{cexpr}.{f}", ft, structs)
-            members.append("struct { " + " ".join(m) + f" }} {f};")
-            into += i
-            back += b
-        else:
-            members.append(f"::mbfb_v4::ctype_t<decltype({expr}.{f})> {f};")
-            into.append(f"::mbfb_v4::to_c({expr}.{f}, {cexpr}.{f});")
-            back.append(f"::mbfb_v4::from_c({cexpr}.{f}, {expr}.{f});")
-    return members, into, back
+        ctype, i, b = mirror(f"{expr}.{f}", f"{cexpr}.{f}", ft, structs)
+        members.append(f"{ctype} {f};")
+        into += i
+        back += b
+    return "struct { " + " ".join(members) + " }", into, back
 
 
 def fb_var_types(body):
@@ -209,19 +207,14 @@ def mirror_code(names, vartypes, structs):
     decl, back = [], []
     for n in names:
         t = vartypes[n]
-        if t in structs:
-            if n in (f for f, _ in structs[t]):
-                die(f"{n} : {t} names one of its own fields (the C mirror's member would hide it)")
-            members, into, out = struct_mirror(n, f"{n}__c", t, structs)
-            decl.append(f"struct {n}__t {{ " + " ".join(members) + " };")
-            # zeroed first: a mirror is compared byte for byte (mbfb.h, MBFB_SAME_BYTES)
-            decl.append(f"{n}__t {n}__c; std::memset(&{n}__c, 0, sizeof {n}__c);")
-            decl += into
-            back += out
-        else:
-            decl.append(f"::mbfb_v4::ctype_t<decltype({n})> {n}__c;")
-            decl.append(f"::mbfb_v4::to_c({n}, {n}__c);")
-            back.append(f"::mbfb_v4::from_c({n}__c, {n});")
+        if t in structs and n in (f for f, _ in structs[t]):
+            die(f"{n} : {t} names one of its own fields (the C mirror's member would hide it)")
+        ctype, into, out = mirror(n, f"{n}__c", t, structs)
+        decl.append(f"{ctype} {n}__c;")
+        if t in structs:   # zeroed first: a mirror's padding is compared too (mbfb.h, MBFB_SETTINGS_SAME's memcmp of Line)
+            decl.append(f"std::memset(&{n}__c, 0, sizeof {n}__c);")
+        decl += into
+        back += out
     return decl, back
 
 
