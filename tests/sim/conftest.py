@@ -98,7 +98,7 @@ class RawPort:
     Given the simulator (`sim`, or a port string and `sim=`), a request that gets no answer
     is known as such from the simulator's frame log; without it, silence is QUIET s."""
 
-    QUIET = 0.3          # after the simulator logged the request (or, without it, after the
+    QUIET = 0.5          # after the simulator logged the request (or, without it, after the
                          # send) this long with no reply and no byte is silence
     GAP = 0.5            # bytes that stop short of a whole reply: cut after this pause
 
@@ -132,7 +132,7 @@ class RawPort:
         n0 = len(sim.log(clear=False)) if sim is not None else 0
         self._send(data)
         now = time.monotonic()
-        got, start, last, heard, need = b"", now, now, None, None
+        got, start, last, heard, need, nrx = b"", now, now, None, None, 0
         while now - start < timeout:
             chunk = self.ser.read(512)
             now = time.monotonic()
@@ -145,10 +145,11 @@ class RawPort:
                 if need is None:
                     dirs = [(f["dir"], f["hex"]) for f in sim.log(clear=False)[n0:]]
                     tx = [bytes.fromhex(h) for d, h in dirs if d == "tx"]
+                    rx = sum(d == "rx" for d, _ in dirs)
                     if tx:
                         need = len(tx[-1])
-                    elif heard is None and any(d == "rx" for d, _ in dirs):
-                        heard = now
+                    elif rx > nrx:          # silence counts from the last receiver's entry:
+                        heard, nrx = now, rx   # on a line of several framings each logs it
                 if need is not None and len(got) >= need:
                     break
                 if need is None and heard is not None and now - heard > self.QUIET:
