@@ -22,6 +22,7 @@
  *              older snapshot than one published before it (not stale), words past the
  *              snapshot's items are left as they were
  */
+#include <sched.h>
 #include <string.h>
 
 #include "mbfb_internal.h"
@@ -533,9 +534,15 @@ static void no_port(void)
  * publications shows it in one of them. Under the TSan flavour this is also the data
  * race check of the handover. */
 #define HO_SNAPS 200000u
-static int ho_done; /* atomic: the producer has published its last snapshot */
+#define HO_MEETS 3u /* the producer waits for a take at 3 points of its run */
+static int ho_done;      /* atomic: the producer has published its last snapshot */
+static uint32_t ho_took; /* atomic: the number of the consumer's last snapshot taken */
 static uint32_t ho_words(uint32_t k) { return 1u + k % MBFB_PLAN_MAX_WORDS; }
 
+/* The producer. At HO_MEETS points of its run it waits until the consumer has taken the
+ * snapshot just published, so that takes happen while it runs however the scheduler
+ * places the two threads: on one core (or a loaded machine), the whole run otherwise fit
+ * in one time slice and the consumer's first take was the last snapshot. */
 static void *ho_producer(void *arg)
 {
     mbfb_plan_t *p = (mbfb_plan_t *)arg;
@@ -544,6 +551,9 @@ static void *ho_producer(void *arg)
         for (uint32_t i = 0; i < ho_words(k); i++)
             w[i] = (uint16_t)(k * 31u + i);
         mbfb_plan_publish(p, (int)k, 3u * k, k & 15u, w, (int)ho_words(k));
+        if (k % (HO_SNAPS / (HO_MEETS + 1)) == 0 && k < HO_SNAPS)
+            while (__atomic_load_n(&ho_took, __ATOMIC_ACQUIRE) < k)
+                sched_yield();
     }
     __atomic_store_n(&ho_done, 1, __ATOMIC_RELEASE);
     return NULL;
@@ -594,12 +604,13 @@ static void handover(void)
         for (uint32_t i = n; i < MBFB_PLAN_MAX_WORDS; i++) /* past the items: untouched, */
             bad += s.words[i] != 0xEEEE; /* no word of an older, longer snapshot */
         last = k;
+        __atomic_store_n(&ho_took, k, __ATOMIC_RELEASE);
     }
     pthread_join(th, NULL);
     CHECK_EQ(bad, 0u);
     CHECK_EQ(stale, 0u);
     CHECK_EQ(last, HO_SNAPS);
-    CHECK(takes >= 2); /* taken while the producer ran, not only its last one */
+    CHECK(takes >= HO_MEETS + 1); /* taken while the producer ran, and its last one */
     CHECK_EQ(mbfb_plan_take(plan, &seq, &s), 0); /* all taken: nothing new */
     printf("handover: %u snapshots published, %u taken, %u takes with nothing new\n",
            HO_SNAPS, takes, none);
