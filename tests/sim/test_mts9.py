@@ -111,6 +111,56 @@ def test_type_register_switches_framing(rtu, raw_factory):
     assert hexu(raw.xfer(crc("02 03 00 08 00 01"))) == crc("02 03 02 00 01")
 
 
+def test_request_at_once_after_a_reply(raw_factory):
+    """A master that sends its next request the moment another framing's reply is in. The
+    MV-D94's RTU receiver still holds the ASCII request (at 2400 baud its t3.5 is 16 ms, far
+    longer than this master takes): the reply on the line ends that frame, so the RTU request
+    is framed alone and answered, every time (it was appended to the held bytes and lost)."""
+    want = lrc_frame("02 03 02 00 00")
+    with simctl.Simulator(["mvd94:1:SV=123", "mts9:2:framing=ascii"], baud=2400,
+                          fmt="8N2") as sim:
+        raw = raw_factory(sim, baud=2400, stop=2)
+        for _ in range(5):
+            raw._send(lrc_frame("02 03 00 08 00 01"))   # pylint: disable=protected-access
+            got, end = b"", time.monotonic() + 10.0
+            while len(got) < len(want) and time.monotonic() < end:
+                got += raw.ser.read(64)
+            assert got == want
+            assert hexu(raw.xfer(crc("01 03 00 00 00 01"))) == crc("01 03 02 00 7B")
+
+
+def test_frame_end_due_before_the_next_bytes(raw_factory):
+    """The simulator stalled (SIGSTOP) after it read a lone address byte and until the next
+    request was in: the frame end that fell due meanwhile (the byte is garbage after
+    LONG_GAP, 50 ms) goes first, and the request is framed alone and answered. asyncio runs
+    a loop iteration's I/O before its due timers: the request was appended to the byte and
+    lost. The ASCII meter on the line logs the byte at once (no ':'): the simulator had read
+    it before it stopped."""
+    import os
+    import signal
+    request = crc("01 03 00 00 00 01")
+    with simctl.Simulator(["mvd94:1:SV=123", "mts9:2:framing=ascii"], fmt="8N2") as sim:
+        raw = raw_factory(sim, stop=2)
+        for _ in range(3):
+            sim.log()
+            raw._send("01")                     # pylint: disable=protected-access
+            sim.wait_for(lambda: sim.log(clear=False), interval=0.001)
+            os.kill(sim.proc.pid, signal.SIGSTOP)
+            try:
+                time.sleep(0.15)
+                raw._send(request)              # pylint: disable=protected-access
+                time.sleep(0.05)
+            finally:
+                os.kill(sim.proc.pid, signal.SIGCONT)
+            got, end = b"", time.monotonic() + 10.0
+            while len(got) < 7 and time.monotonic() < end:
+                got += raw.ser.read(64)
+                time.sleep(0.01)
+            assert [f["hex"] for f in sim.log()
+                    if f["dir"] == "rx" and f.get("framing") == "rtu"] == ["01", request]
+            assert hexu(got) == crc("01 03 02 00 7B")
+
+
 def test_three_framings_on_one_line(raw_factory):
     """An MV-D94 (RTU), an MT-S9 on ASCII and one on RTU without CRC on one line: each device
     hears every byte and answers only frames of its own framing addressed to it."""

@@ -226,6 +226,8 @@ class SerialLine:
         async with self.wlock:
             if generation != self.generation or self.fd is None:
                 return
+            for rx in list(self.rx.values()):   # the reply ends every frame held
+                rx.end_frame()
             self.bus.record("tx", data, info, tag)
             if not self.pace or self.ptyline is not None:   # ptyline paces it (one write:
                 self._write(data)                          # no stall can split the frame)
@@ -266,7 +268,8 @@ class Receiver:
         self.bus = line.bus
         self.settings = line.line
         self.buf = bytearray()
-        self.timer = None
+        self.timer = None               # the frame-end timer (t3.5, LONG_GAP, ASCII's 1 s)
+        self.since = 0.0                # loop time of the bytes the timer waits after
         self.mixed = False              # other framings on the line too: log entries say which
 
     def reset(self):
@@ -280,8 +283,27 @@ class Receiver:
         return self.framing if self.mixed else None
 
     def feed(self, data: bytes):
+        # A frame-end timer already due runs before newer bytes are taken. asyncio runs the I/O
+        # callbacks of a loop iteration before the timers that fell due in it, so after a stall
+        # of this process (a loaded machine) the next request was appended to a frame whose
+        # t3.5 had passed before it came: both lost as one bad frame, and no reply.
+        loop = asyncio.get_running_loop()
+        while self.timer is not None and self.timer.when() <= loop.time():
+            self.timer.cancel()
+            self._silence(self.since)
         self.buf += data
         self._parse()
+
+    def end_frame(self):
+        """Another device's reply goes on the line: whatever this receiver holds is a whole
+        frame or garbage now (the master's write is over; a real receiver also hears the reply
+        and the silence after it). Without it a master that sent its next request at once
+        (an unpaced line answers with no turnaround) had it appended to the held bytes."""
+        if self.timer is not None:
+            self.timer.cancel()
+            self.timer = None
+        if self.buf:
+            self._silence(self.since, held=False)
 
     def _parse(self):
         loop = asyncio.get_running_loop()
@@ -320,10 +342,12 @@ class Receiver:
             self.timer = None
         if self.buf:
             wait = self.settings.t35 if self.framing != "ascii" else 1.0
-            self.timer = loop.call_later(wait, self._silence, loop.time())
+            self.since = loop.time()
+            self.timer = loop.call_later(wait, self._silence, self.since)
 
-    def _silence(self, since: float):
-        """t3.5 of silence: the buffer is a whole frame unless its function says it is short."""
+    def _silence(self, since: float, held: bool = True):
+        """t3.5 of silence: the buffer is a whole frame unless its function says it is short.
+        held=False: no longer wait for the rest of a short frame (end_frame)."""
         self.timer = None
         if not self.buf:
             return
@@ -341,7 +365,7 @@ class Receiver:
             self.buf.clear()
             self._frame(frame)
             return
-        if short and loop.time() - since < LONG_GAP:
+        if short and held and loop.time() - since < LONG_GAP:
             # A master's write split by the scheduler: wait a little longer than t3.5.
             self.timer = loop.call_later(LONG_GAP - (loop.time() - since), self._silence, since)
             return
