@@ -272,10 +272,13 @@ class Receiver:
         self.since = 0.0                # loop time of the bytes the timer waits after
         self.mixed = False              # other framings on the line too: log entries say which
 
-    def reset(self):
-        if self.timer:
+    def _stop_timer(self):
+        if self.timer is not None:
             self.timer.cancel()
             self.timer = None
+
+    def reset(self):
+        self._stop_timer()
         self.buf.clear()
 
     @property
@@ -289,8 +292,8 @@ class Receiver:
         # t3.5 had passed before it came: both lost as one bad frame, and no reply.
         loop = asyncio.get_running_loop()
         while self.timer is not None and self.timer.when() <= loop.time():
-            self.timer.cancel()
-            self._silence(self.since)
+            self._stop_timer()
+            self._silence()
         self.buf += data
         self._parse()
 
@@ -299,11 +302,9 @@ class Receiver:
         frame or garbage now (the master's write is over; a real receiver also hears the reply
         and the silence after it). Without it a master that sent its next request at once
         (an unpaced line answers with no turnaround) had it appended to the held bytes."""
-        if self.timer is not None:
-            self.timer.cancel()
-            self.timer = None
+        self._stop_timer()
         if self.buf:
-            self._silence(self.since, held=False)
+            self._silence(held=False)
 
     def _parse(self):
         loop = asyncio.get_running_loop()
@@ -337,15 +338,13 @@ class Receiver:
                 frame = bytes(self.buf[:need])
                 del self.buf[:need]
                 self._frame(frame)
-        if self.timer:
-            self.timer.cancel()
-            self.timer = None
+        self._stop_timer()
         if self.buf:
             wait = self.settings.t35 if self.framing != "ascii" else 1.0
             self.since = loop.time()
-            self.timer = loop.call_later(wait, self._silence, self.since)
+            self.timer = loop.call_later(wait, self._silence)
 
-    def _silence(self, since: float, held: bool = True):
+    def _silence(self, held: bool = True):
         """t3.5 of silence: the buffer is a whole frame unless its function says it is short.
         held=False: no longer wait for the rest of a short frame (end_frame)."""
         self.timer = None
@@ -365,9 +364,9 @@ class Receiver:
             self.buf.clear()
             self._frame(frame)
             return
-        if short and held and loop.time() - since < LONG_GAP:
+        if short and held and loop.time() - self.since < LONG_GAP:
             # A master's write split by the scheduler: wait a little longer than t3.5.
-            self.timer = loop.call_later(LONG_GAP - (loop.time() - since), self._silence, since)
+            self.timer = loop.call_later(LONG_GAP - (loop.time() - self.since), self._silence)
             return
         frame = bytes(self.buf)
         self.buf.clear()
