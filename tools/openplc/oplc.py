@@ -161,11 +161,14 @@ class Scratch:
         """Stop the runtime we started: quit() first, then SIGKILL by pid."""
         if self.proc and self.proc.poll() is None:
             try:
-                self.command("quit()")
-                self.proc.wait(timeout=5)
-            except (OSError, AttributeError, subprocess.TimeoutExpired):
+                if self.isock is not None:    # the connection start() opened
+                    self.command("quit()")
+                    self.proc.wait(timeout=5)
+            except (OSError, subprocess.TimeoutExpired):
+                pass
+            if self.proc.poll() is None:
                 os.kill(self.proc.pid, signal.SIGKILL)
-                self.proc.wait()
+            self.proc.wait()
         self.proc = None
         if self.isock:
             self.isock.close()
