@@ -332,7 +332,7 @@ int mbfb_bus_diag(int dev, mbfb_bus_diag_t *out)
  * scanning the blocks that post here: what they queued is not sent (README "Lifetime"). */
 static int bus_unscanned(mbfb_bus_t *bus)
 {
-    int64_t now = mbfb_now_us(), bound = (int64_t)MBFB_STALE_MIN_MS * 1000;
+    int64_t now = mbfb_now_us(), bound = MBFB_MS(MBFB_STALE_MIN_MS);
     uint32_t scans = __atomic_load_n(&bus->scans, __ATOMIC_RELAXED);
     int n = __atomic_load_n(&bus->n_plans, __ATOMIC_ACQUIRE);
 
