@@ -30,23 +30,29 @@ extern "C" {
 
 #define MBFB_COIL_ON       0xFF00 /* FC05's value for ON (OFF: 0x0000)              */
 
+/* Sets of function codes as bit masks (bit fc): one test where the scan side asks. */
+#define MBFB_FC_BIT(fc) (1u << (fc))
+#define MBFB_FCS_BITS  (MBFB_FC_BIT(MBFB_FC_READ_COILS) | MBFB_FC_BIT(MBFB_FC_READ_DISCRETE) | \
+                        MBFB_FC_BIT(MBFB_FC_WRITE_COIL) | MBFB_FC_BIT(MBFB_FC_WRITE_COILS))
+#define MBFB_FCS_READ  (MBFB_FC_BIT(MBFB_FC_READ_COILS) | MBFB_FC_BIT(MBFB_FC_READ_DISCRETE) | \
+                        MBFB_FC_BIT(MBFB_FC_READ_HOLDING) | MBFB_FC_BIT(MBFB_FC_READ_INPUT))
+#define MBFB_FCS_WRITE (MBFB_FC_BIT(MBFB_FC_WRITE_COIL) | MBFB_FC_BIT(MBFB_FC_WRITE_SINGLE) | \
+                        MBFB_FC_BIT(MBFB_FC_WRITE_COILS) | MBFB_FC_BIT(MBFB_FC_WRITE_MULTIPLE))
+
 /** Does fc read or write bits (coils, discrete inputs: FC01, 02, 05, 15)? */
 static inline int mbfb_fc_is_bits(int fc)
 {
-    return fc == MBFB_FC_READ_COILS || fc == MBFB_FC_READ_DISCRETE ||
-           fc == MBFB_FC_WRITE_COIL || fc == MBFB_FC_WRITE_COILS;
+    return (unsigned)fc < 32 && (MBFB_FCS_BITS >> fc & 1u);
 }
 /** Is fc a read (FC01, 02, 03, 04)? */
 static inline int mbfb_fc_is_read(int fc)
 {
-    return fc == MBFB_FC_READ_HOLDING || fc == MBFB_FC_READ_INPUT ||
-           fc == MBFB_FC_READ_COILS || fc == MBFB_FC_READ_DISCRETE;
+    return (unsigned)fc < 32 && (MBFB_FCS_READ >> fc & 1u);
 }
 /** Is fc a write (FC05, 06, 15, 16)? */
 static inline int mbfb_fc_is_write(int fc)
 {
-    return fc == MBFB_FC_WRITE_SINGLE || fc == MBFB_FC_WRITE_MULTIPLE ||
-           fc == MBFB_FC_WRITE_COIL || fc == MBFB_FC_WRITE_COILS;
+    return (unsigned)fc < 32 && (MBFB_FCS_WRITE >> fc & 1u);
 }
 /** The other read function of the same kind: input registers for holding ones and back,
  *  discrete inputs for coils and back. */
