@@ -147,8 +147,9 @@ static inline int mbfb_data_words(int fc, int count)
 uint16_t mbfb_crc16(const uint8_t *buf, int len);   /* CRC-16/MODBUS, send low byte first */
 uint8_t  mbfb_lrc(const uint8_t *buf, int len);     /* two's complement of the byte sum   */
 
-/** Build the request frame for fc 3/4/6/16 into out (>= 7 + 2*count bytes).
- *  Returns its length. Arguments must already be validated. */
+/** Build the request frame for fc 1/2/3/4/5/6/15/16 into out (at most 7 + 2 * 123 bytes:
+ *  FC16; FC15 7 + ceil(count / 8)). Returns its length. Arguments must already be
+ *  validated (mbfb_check_args). */
 int mbfb_build_request(uint8_t *out, int slave, int fc, int addr, int count,
                        const uint16_t *values);
 
@@ -156,9 +157,9 @@ int mbfb_build_request(uint8_t *out, int slave, int fc, int addr, int count,
 int mbfb_reply_len(const uint8_t *req);
 
 /** Check reply frame `rsp` (len bytes) against request frame `req`: slave, function,
- *  byte count, the echo of FC06/FC16, exception. Returns 0 when good (read values
- *  are then at rsp+3), MBFB_E_EXCEPTION_BASE + code for an exception reply, or
- *  MBFB_E_BADREPLY. */
+ *  byte count (2 x registers, ceil(bits / 8)), the echo of FC05/06/15/16, exception.
+ *  Returns 0 when good (read values, or bytes of bits, are then at rsp+3),
+ *  MBFB_E_EXCEPTION_BASE + code for an exception reply, or MBFB_E_BADREPLY. */
 int mbfb_check_reply(const uint8_t *req, const uint8_t *rsp, int len);
 
 /** The next whole, checked reply frame in bytes heard on the line (buf[*pos..n)): a
