@@ -19,9 +19,8 @@
 extern "C" {
 #endif
 
-/* ---- protocol limits (Modbus application protocol 1.1b3, 6.3 / 6.12) ---------- */
-#define MBFB_MAX_READ      125  /* FC03/FC04 registers per request                */
-#define MBFB_MAX_WRITE     123  /* FC16 registers per request                     */
+/* ---- protocol limits (Modbus application protocol 1.1b3, 6.3 / 6.12; the per-request
+ * counts are public: MBFB_MAX_READ, MBFB_MAX_WRITE, MBFB_MAX_READ_BITS, _WRITE_BITS) ---- */
 #define MBFB_FRAME_MAX     256  /* slave + PDU (253) + 2 check bytes              */
 #define MBFB_MAX_SLAVE     247  /* serial addresses 1..247, 0 = broadcast         */
 #define MBFB_MAX_BAUD      4000000 /* the fastest rate a Linux UART driver offers    */
@@ -29,21 +28,68 @@ extern "C" {
 #define MBFB_ADDR_SPACE    0x10000 /* register addresses 0..0xFFFF                 */
 #define MBFB_EXCEPTION_BIT 0x80 /* set in the function code of an exception reply  */
 
-/** Is fc a read (MBFB_FC_READ_HOLDING, MBFB_FC_READ_INPUT)? */
+#define MBFB_COIL_ON       0xFF00 /* FC05's value for ON (OFF: 0x0000)              */
+
+/* Sets of function codes as bit masks (bit fc): one test where the scan side asks. */
+#define MBFB_FC_BIT(fc) (1u << (fc))
+#define MBFB_FCS_BITS  (MBFB_FC_BIT(MBFB_FC_READ_COILS) | MBFB_FC_BIT(MBFB_FC_READ_DISCRETE) | \
+                        MBFB_FC_BIT(MBFB_FC_WRITE_COIL) | MBFB_FC_BIT(MBFB_FC_WRITE_COILS))
+#define MBFB_FCS_READ  (MBFB_FC_BIT(MBFB_FC_READ_COILS) | MBFB_FC_BIT(MBFB_FC_READ_DISCRETE) | \
+                        MBFB_FC_BIT(MBFB_FC_READ_HOLDING) | MBFB_FC_BIT(MBFB_FC_READ_INPUT))
+#define MBFB_FCS_WRITE (MBFB_FC_BIT(MBFB_FC_WRITE_COIL) | MBFB_FC_BIT(MBFB_FC_WRITE_SINGLE) | \
+                        MBFB_FC_BIT(MBFB_FC_WRITE_COILS) | MBFB_FC_BIT(MBFB_FC_WRITE_MULTIPLE))
+
+/** Does fc read or write bits (coils, discrete inputs: FC01, 02, 05, 15)? */
+static inline int mbfb_fc_is_bits(int fc)
+{
+    return (unsigned)fc < 32 && (MBFB_FCS_BITS >> fc & 1u);
+}
+/** Is fc a read (FC01, 02, 03, 04)? */
 static inline int mbfb_fc_is_read(int fc)
 {
-    return fc == MBFB_FC_READ_HOLDING || fc == MBFB_FC_READ_INPUT;
+    return (unsigned)fc < 32 && (MBFB_FCS_READ >> fc & 1u);
 }
-/** Is fc a write (MBFB_FC_WRITE_SINGLE, MBFB_FC_WRITE_MULTIPLE)? */
+/** Is fc a write (FC05, 06, 15, 16)? */
 static inline int mbfb_fc_is_write(int fc)
 {
-    return fc == MBFB_FC_WRITE_SINGLE || fc == MBFB_FC_WRITE_MULTIPLE;
+    return (unsigned)fc < 32 && (MBFB_FCS_WRITE >> fc & 1u);
 }
-/** The other read function: input registers for holding ones and back. */
+/** The other read function of the same kind: input registers for holding ones and back,
+ *  discrete inputs for coils and back. */
 static inline int mbfb_fc_other_read(int fc)
 {
-    return fc == MBFB_FC_READ_HOLDING ? MBFB_FC_READ_INPUT : MBFB_FC_READ_HOLDING;
+    switch (fc) {
+    case MBFB_FC_READ_HOLDING:  return MBFB_FC_READ_INPUT;
+    case MBFB_FC_READ_COILS:    return MBFB_FC_READ_DISCRETE;
+    case MBFB_FC_READ_DISCRETE: return MBFB_FC_READ_COILS;
+    default:                    return MBFB_FC_READ_HOLDING;
+    }
 }
+/** The read that shows what a write (fc) left on the device (its read-back): FC01 for
+ *  coils, FC03 for registers. */
+static inline int mbfb_fc_readback(int fc)
+{
+    return mbfb_fc_is_bits(fc) ? MBFB_FC_READ_COILS : MBFB_FC_READ_HOLDING;
+}
+/** Most items a read of fc may ask for (registers or bits). */
+static inline int mbfb_read_max(int fc)
+{
+    return mbfb_fc_is_bits(fc) ? MBFB_MAX_READ_BITS : MBFB_MAX_READ;
+}
+/** Data bytes of a good reply to a read of `count` items with fc (its byte count). */
+static inline int mbfb_read_bytes(int fc, int count)
+{
+    return mbfb_fc_is_bits(fc) ? (count + 7) / 8 : 2 * count;
+}
+/** Words the API carries for `count` items of fc: registers, or bits packed. */
+static inline int mbfb_data_words(int fc, int count)
+{
+    return mbfb_fc_is_bits(fc) ? MBFB_BIT_WORDS(count) : count;
+}
+
+/* ---- units ------------------------------------------------------------------- */
+/** Microseconds (the worker's clock, mbfb_now_us) in `ms` milliseconds. */
+#define MBFB_MS(ms) ((int64_t)(ms) * 1000)
 
 /* ---- sizes of this library -------------------------------------------------- */
 #define MBFB_MAX_BUSES     16   /* 4 bits of a request handle                     */
@@ -64,6 +110,8 @@ static inline int mbfb_fc_other_read(int fc)
  * for as long (the longest of its plans' bounds, at least MBFB_STALE_MIN_MS). */
 #define MBFB_STALE_PERIODS   10
 #define MBFB_STALE_MIN_MS    2000
+#define MBFB_MAX_RETRIES     20 /* mbfb_bus_config_t.retries at most                */
+#define MBFB_MAX_TIMEOUT_MS  60000 /* response_timeout_ms at most (a minute)         */
 #define MBFB_SCAN_MAX_MS     60000 /* a longer gap between takes is a stop, not a task's
                                       interval (the bound does not learn from it)     */
 #define MBFB_DEFAULT_RETRIES 3  /* SetPro manual 5.6: retry at least 3 times      */
@@ -71,8 +119,8 @@ static inline int mbfb_fc_other_read(int fc)
 /* A device in back-off is probed (one attempt) once per probe interval: at least
  * MBFB_PROBE_MIN_MS, and MBFB_PROBE_SHARE response timeouts, so a dead device costs at
  * most 1/MBFB_PROBE_SHARE of the line however long it stays dead, and a device that
- * comes back is found within one interval (README "Back-off"). A port that could not be
- * opened is tried again after MBFB_PROBE_MIN_MS. */
+ * comes back is found within one interval (mbfb_device.c; README "Failures and what the
+ * worker does"). A port that could not be opened is tried again after MBFB_PROBE_MIN_MS. */
 #define MBFB_PROBE_MIN_MS    500
 #define MBFB_PROBE_SHARE     10
 #define MBFB_TURNAROUND_US   10000 /* after a broadcast: SetPro processing max 10 ms */
@@ -90,6 +138,8 @@ static inline int mbfb_fc_other_read(int fc)
  * time a started reply may take. A configured TimeoutMs replaces the whole timeout. */
 #define MBFB_NET_ALLOWANCE_US 100000
 #define MBFB_CONNECT_MS      1000 /* TCP connect of RTU over TCP; a stuck send          */
+#define MBFB_STUCK_UART_US   100000 /* a UART that has not sent a frame this long after its
+                                       wire time is stuck (direction control's drain)  */
 
 /* ---- CRC / LRC / frames (mbfb_frame.c) --------------------------------------
  * A "frame" here is slave id + PDU, without CRC, LRC or MBAP header: the backends
@@ -97,8 +147,9 @@ static inline int mbfb_fc_other_read(int fc)
 uint16_t mbfb_crc16(const uint8_t *buf, int len);   /* CRC-16/MODBUS, send low byte first */
 uint8_t  mbfb_lrc(const uint8_t *buf, int len);     /* two's complement of the byte sum   */
 
-/** Build the request frame for fc 3/4/6/16 into out (>= 7 + 2*count bytes).
- *  Returns its length. Arguments must already be validated. */
+/** Build the request frame for fc 1/2/3/4/5/6/15/16 into out (at most 7 + 2 * 123 bytes:
+ *  FC16; FC15 7 + ceil(count / 8)). Returns its length. Arguments must already be
+ *  validated (mbfb_check_args). */
 int mbfb_build_request(uint8_t *out, int slave, int fc, int addr, int count,
                        const uint16_t *values);
 
@@ -106,9 +157,9 @@ int mbfb_build_request(uint8_t *out, int slave, int fc, int addr, int count,
 int mbfb_reply_len(const uint8_t *req);
 
 /** Check reply frame `rsp` (len bytes) against request frame `req`: slave, function,
- *  byte count, the echo of FC06/FC16, exception. Returns 0 when good (read values
- *  are then at rsp+3), MBFB_E_EXCEPTION_BASE + code for an exception reply, or
- *  MBFB_E_BADREPLY. */
+ *  byte count (2 x registers, ceil(bits / 8)), the echo of FC05/06/15/16, exception.
+ *  Returns 0 when good (read values, or bytes of bits, are then at rsp+3),
+ *  MBFB_E_EXCEPTION_BASE + code for an exception reply, or MBFB_E_BADREPLY. */
 int mbfb_check_reply(const uint8_t *req, const uint8_t *rsp, int len);
 
 /** The next whole, checked reply frame in bytes heard on the line (buf[*pos..n)): a
@@ -122,6 +173,21 @@ int mbfb_hex_digit(int c);
 
 /** Validate post arguments; 0 or MBFB_E_INVAL. */
 int mbfb_check_args(int slave, int fc, int addr, int count, const uint16_t *values);
+
+/** Bytes on the wire (slave + PDU + CRC) of the RTU reply whose first `got` bytes are at b,
+ *  from its function code and byte count: > 0, -1 when more bytes are needed to tell (the
+ *  byte count), or 0 when its function code gives no length. The one rule for framing a
+ *  reply ourselves (late replies heard, RTU over TCP); libmodbus has its own. */
+int mbfb_rtu_reply_wire_len(const uint8_t *b, int got);
+
+/** Bits packed in words (MBFB_BIT_WORDS) -> the wire's bytes of `n` bits (FC15, FC01/02
+ *  replies), LSB first; the bits past n in the last byte are 0. */
+void mbfb_bits_to_bytes(const uint16_t *words, int n, uint8_t *out);
+/** The wire's bytes of `n` bits -> MBFB_BIT_WORDS(n) words; the bits past n are 0. */
+void mbfb_bytes_to_bits(const uint8_t *in, int n, uint16_t *words);
+/** Does `read` (its read-back, mbfb_fc_readback) show what write (fc, count, vals) wrote?
+ *  Registers word for word, coils bit for bit (FC05: ON when vals[0] != 0). */
+int mbfb_readback_shows(int fc, int count, const uint16_t *vals, const uint16_t *read);
 
 /* ---- timing (mbfb_timing.c) ---------------------------------------------- */
 typedef struct mbfb_timing {
@@ -253,25 +319,30 @@ typedef struct mbfb_slot {
     int chain;              /* 1: a chain (mbfb_post_chain) of `count` entries: registers
                                in values[0..count), words in values[count..2 count)   */
     int result;             /* MBFB_OK or positive MBFB_E_* (written by worker)  */
-    int nvals;              /* registers read; a chain: entries held (atomic: worker
-                               writes, mbfb_chain_held reads)                      */
+    int nvals;              /* registers read (bits: FC01/02); a chain: entries held
+                               (atomic: worker writes, mbfb_chain_held reads)      */
     uint16_t values[MBFB_MAX_READ]; /* write values in, read values out          */
 } mbfb_slot_t;
-/* a chain's registers and words fit in one slot */
+/* a chain's registers and words fit in one slot, and so do the most bits a request carries */
 typedef char mbfb_chain_fits_a_slot[2 * MBFB_CHAIN_MAX <= MBFB_MAX_READ ? 1 : -1];
+typedef char mbfb_bits_fit_a_slot[MBFB_BIT_WORDS(MBFB_MAX_READ_BITS) <= MBFB_MAX_READ &&
+                                  MBFB_BIT_WORDS(MBFB_MAX_READ_BITS) <= MBFB_PLAN_MAX_WORDS
+                                  ? 1 : -1];
 
 /* ---- devices ------------------------------------------------------------- */
 /** Reply shape of a failed attempt whose reply may still come (README "Late replies"):
  *  what a late reply to it would look like. A read's reply is told by (fc, byte count); a
- *  write's echo by fc and its first two words (address, and value (FC06) or count (FC16)). */
+ *  write's echo by fc and its first two words (address, and value (FC05/06) or count
+ *  (FC15/16)). */
 typedef struct mbfb_shape {
     int fc;                  /* function code of the request                      */
-    int bytes;               /* reads: the reply's byte count (2 x registers)     */
-    int addr;                /* reads: the first register (a probe reads it again) */
-    uint16_t echo[2];        /* writes: the echo's address and value / count      */
+    int bytes;               /* reads: the reply's byte count (mbfb_read_bytes)   */
+    int addr, count;         /* reads: the range (a probe reads it again)          */
+    uint16_t echo[2];        /* writes: the echo's address and value / count (the request's
+                                words 2..5, mbfb_build_request)                      */
     int64_t t_us;            /* when that attempt was sent                         */
     int readable;            /* reads: inside a range that read well, so never answered
-                                with a fixed exception (mbfb_worker.c)              */
+                                with a fixed exception (mbfb_resync.c)              */
 } mbfb_shape_t;
 
 /** A read range known to be readable on the device (plan items, good reads). */
@@ -279,16 +350,40 @@ typedef struct mbfb_range {
     int fc, addr, count;
 } mbfb_range_t;
 
+/** A device's protocol state (README "Late replies"; mbfb_device.c: its transitions, the
+ *  only place that writes it). Serial lines (and RTU over TCP) have no transaction id, so a
+ *  failed attempt leaves the device out of step; Modbus TCP reconnects instead and knows
+ *  only IN_STEP and BACKOFF. */
+typedef enum mbfb_dev_state {
+    MBFB_DEV_IN_STEP = 0,    /* no reply of an earlier request can still come: a request
+                                goes as it is (zero: a new device)                   */
+    MBFB_DEV_OUT_OF_STEP,    /* a failed attempt's reply may still come: only resync
+                                reads go, until one is answered                      */
+    MBFB_DEV_BACKOFF,        /* MBFB_OFFLINE_AFTER requests in a row unanswered: nothing
+                                goes before next_probe_us, then one probe            */
+    MBFB_DEV_SHAPES_FULL     /* out of step with every reply shape outstanding: nothing
+                                goes until the oldest expires (next_probe_us), then one
+                                probe                                                */
+} mbfb_dev_state_t;
+
+/** What happens to a device (mbfb_dev_event). */
+typedef enum mbfb_dev_event {
+    MBFB_EV_ATTEMPT_FAILED,  /* an attempt got no valid reply (its reply may come late)  */
+    MBFB_EV_RESYNCED,        /* a resync read was answered: nothing older can follow     */
+    MBFB_EV_ANSWERED,        /* the device answered a request, or was heard answering     */
+    MBFB_EV_UNANSWERED,      /* a request that put attempts on the wire got no answer     */
+    MBFB_EV_SHAPES_FULL      /* no resync read possible: every reply shape outstanding    */
+} mbfb_dev_event_t;
+
 typedef struct mbfb_dev {
     int bus, slave;          /* set once at mbfb_dev_open, before publication     */
     mbfb_diag_t diag;        /* each field written by the worker with __atomic     */
     uint32_t diag_seq;       /* atomic: bumped after every diag change            */
-    /* back-off: worker only */
-    int fails;               /* consecutive failed transactions                   */
-    int64_t probe_us;        /* probe interval; > 0: in back-off                  */
-    int64_t next_probe_us;
-    /* resynchronisation: worker only */
-    int in_step;             /* 1: no reply of an earlier request can still come  */
+    /* protocol state: worker only, written by mbfb_dev_event alone */
+    mbfb_dev_state_t state;
+    int fails;               /* requests unanswered in a row (MBFB_OFFLINE_AFTER)  */
+    int64_t next_probe_us;   /* BACKOFF, SHAPES_FULL: nothing goes before then     */
+    /* resynchronisation: worker only (mbfb_resync.c) */
     int n_outstanding;       /* reply shapes of failed attempts that may still come */
     mbfb_shape_t outstanding[MBFB_OUTSTANDING_MAX];
     int n_known;             /* ranges that read well, most recent first          */
@@ -339,9 +434,12 @@ typedef struct mbfb_plan {
     /* settings (scan writes, worker reads; all atomic) */
     uint32_t cfg_seq;        /* sequence lock: odd while plan_set writes          */
     int running;             /* 1 after mbfb_plan_set, 0 after mbfb_plan_stop      */
-    int n, period_ms, slow_ms;
+    int n, period_ms, slow_ms; /* period_ms: >= 0 or MBFB_PERIOD_ON_DEMAND           */
     mbfb_plan_item_t items[MBFB_PLAN_MAX_ITEMS];
     uint32_t taken;          /* atomic: seq of the snapshot mbfb_plan_take copied last */
+    uint32_t trigger;        /* atomic: bumped by mbfb_plan_trigger (scan)          */
+    uint32_t trigger_seen;   /* worker only: `trigger` when the last refresh started:
+                                a refresh is due at once while they differ          */
     mbfb_slow_t slow;        /* the slow tier (gen: scan; the rest: worker)        */
     /* worker only */
     uint32_t cfg_seen;       /* cfg_seq of the settings of the last refresh        */
@@ -373,6 +471,7 @@ typedef struct mbfb_plan {
 
 /* ---- bus ----------------------------------------------------------------- */
 #define MBFB_BUSY_BUCKETS 10  /* busy_permille: 10 buckets of 100 ms */
+#define MBFB_BUSY_BUCKET_US 100000
 
 typedef struct mbfb_bus {
     char *port;              /* as given (tcp://host:port or a path)              */
@@ -395,7 +494,7 @@ typedef struct mbfb_bus {
     uint32_t stray_bytes;    /* atomic: bytes discarded outside replies (diag)     */
     uint8_t heard[MBFB_HEARD_MAX]; /* worker: the last bytes heard during the silence
                                 wait before this attempt (mbfb_serial_quiet), for late
-                                replies (mbfb_worker.c, hear_late_replies)           */
+                                replies (mbfb_resync.c, mbfb_hear_late_replies)      */
     int n_heard;
     uint32_t transactions;   /* atomic: attempts put on the wire                   */
     uint32_t busy_epoch[MBFB_BUSY_BUCKETS]; /* atomic: 100 ms period of the bucket */
@@ -462,12 +561,12 @@ int  mbfb_plan_parked(mbfb_plan_t *p, int64_t now);
 /** Publish refresh number p->seq + 1 (words: the items' words in order). */
 void mbfb_plan_publish(mbfb_plan_t *p, int result, uint32_t gen, uint32_t read_mask,
                        const uint16_t *words, int nwords);
-
-/* the worker (mbfb_worker.c) */
-void *mbfb_worker_main(void *arg);
 /** Every running plan of the bus ends its refresh now with `err` (the port could not be
  *  opened); none is due again before bus->reopen_us. */
 void mbfb_plans_no_port(mbfb_bus_t *bus, int64_t now, int err);
+
+/* the worker (mbfb_worker.c) */
+void *mbfb_worker_main(void *arg);
 
 /* waking the worker (mbfb_wake.c): an eventfd, so that the idle worker waits on the port
  * and on posts in one ppoll and uses no CPU until one of them comes */
@@ -489,7 +588,7 @@ int  mbfb_wake_wait(mbfb_bus_t *bus, int port_fd, int64_t until);
 typedef struct mbfb_request {
     int devidx, fc, addr, count, policy;
     const uint16_t *vals;    /* writes                                               */
-    uint16_t *out;           /* reads: count registers                               */
+    uint16_t *out;           /* reads: count registers, or count bits packed          */
     int write_sent;          /* out: the write itself went on the wire (maybe applied) */
 } mbfb_request_t;
 /** Run one request: back-off, the port, its attempts (mbfb_attempt.c). Returns MBFB_OK or
@@ -499,11 +598,31 @@ int  mbfb_device_request(mbfb_bus_t *bus, mbfb_request_t *request);
 /** Wait for a silent line before an attempt to `slave`, hearing late replies meanwhile.
  *  0 or -MBFB_E_PORTLOST. */
 int  mbfb_wait_quiet(mbfb_bus_t *bus, int slave);
+
+/* a device's protocol state (mbfb_device.c) */
+/** The one writer of dev->state: the transition `ev` makes (t: when, for the hold of
+ *  BACKOFF and SHAPES_FULL), with the device's fails, next_probe_us and diag.offline. */
+void mbfb_dev_event(mbfb_bus_t *bus, mbfb_dev_t *dev, mbfb_dev_event_t ev, int64_t t);
+/** Is the device held back (BACKOFF, SHAPES_FULL): nothing before next_probe_us, then one
+ *  probe? */
+static inline int mbfb_dev_held(const mbfb_dev_t *dev)
+{
+    return dev->state == MBFB_DEV_BACKOFF || dev->state == MBFB_DEV_SHAPES_FULL;
+}
+/** May a request go to the device as it is (no late reply of it possible)? Always on
+ *  Modbus TCP, whose failed attempts reconnect. */
+static inline int mbfb_dev_in_step(const struct mbfb_bus *bus, const mbfb_dev_t *dev)
+{
+    return dev->state == MBFB_DEV_IN_STEP || !bus->be->needs_resync;
+}
+
+/* the line's use (mbfb_busy.c): busy_permille over the last second, in 100 ms buckets */
 /** Sum the line's busy time of the last second into bus->busy_permille; returns when the
  *  window holds no busy time any more (INT64_MAX: none now). */
 int64_t mbfb_busy_update(mbfb_bus_t *bus, int64_t now);
-/** The device answered (or was heard): out of back-off, its failures count from 0. */
-void mbfb_end_backoff(mbfb_dev_t *dev);
+/** Account `us` of line time in the bucket of `now` (an attempt: request, turnaround,
+ *  reply, the gap owed). */
+void mbfb_busy_add(mbfb_bus_t *bus, int64_t now, int64_t us);
 
 /* late replies and resync reads (mbfb_resync.c) */
 /** Modbus exception codes a request draws each time it is sent, as the device's map does
@@ -515,11 +634,12 @@ void mbfb_end_backoff(mbfb_dev_t *dev);
 int  mbfb_retire_heard(mbfb_bus_t *bus, const uint8_t *f, int len);
 /** Late replies among the bytes heard in the silence before a request (bus->heard). */
 void mbfb_hear_late_replies(mbfb_bus_t *bus);
-/** After a failed attempt (fc, addr, count, vals) sent at t: out of step (serial lines),
- *  its reply shape outstanding. */
+/** After a failed attempt (fc, addr, count, vals) sent at t: out of step (serial lines,
+ *  MBFB_EV_ATTEMPT_FAILED), its reply shape outstanding. */
 void mbfb_out_of_step(mbfb_bus_t *bus, mbfb_dev_t *dev, int fc, int addr, int count,
                       const uint16_t *vals, int64_t t);
-/** A resync read was answered: in step, nothing outstanding, no settle owed for it. */
+/** A resync read was answered: in step (MBFB_EV_RESYNCED), nothing outstanding, no settle
+ *  owed for it. */
 void mbfb_in_step(mbfb_bus_t *bus, mbfb_dev_t *dev);
 /** Remember a range that read well (most recent first). */
 void mbfb_remember_read(mbfb_dev_t *dev, int fc, int addr, int count);

@@ -15,28 +15,6 @@
 
 #include "mbfb_internal.h"
 
-/* Every running plan of the bus ends its refresh now with `err` (the port could not be
- * opened: MBFB_E_NOPORT, MBFB_E_BAUD for a rate the driver cannot set, MBFB_E_DIRECTION
- * for a direction mode it refuses): one failed snapshot each, in this one pass, and none
- * is due again before bus->reopen_us, so the bus tries open() once per probe interval
- * whatever the number of plans. */
-void mbfb_plans_no_port(mbfb_bus_t *bus, int64_t now, int err)
-{
-    int n = __atomic_load_n(&bus->n_plans, __ATOMIC_ACQUIRE);
-    uint16_t words[MBFB_PLAN_MAX_WORDS];
-
-    memset(words, 0, sizeof words);
-    for (int i = 0; i < n; i++) {
-        mbfb_plan_t *p = __atomic_load_n(&bus->plans[i], __ATOMIC_ACQUIRE);
-        mbfb_plan_cfg_t cfg;
-        if (p == NULL || !mbfb_plan_read_cfg(p, &cfg))
-            continue; /* not running */
-        p->last_start_us = now;
-        MBFB_DIAG_SET(mbfb_devs[p->dev], last_error, (int32_t)err);
-        mbfb_plan_publish(p, err, cfg.slow_gen, 0u, words, cfg.nwords);
-    }
-}
-
 /* ---- posted requests ---------------------------------------------------------------- */
 
 /* One entry of a chain (slot s, entry i): its write, confirmed as any idempotent write
@@ -115,26 +93,30 @@ static int run_posted(mbfb_bus_t *bus, int chains)
 
 /* ---- plans ------------------------------------------------------------------------- */
 
-/* When a plan is due (monotonic us); INT64_MAX if it is not running. New settings:
- * now. A device in back-off is due at its next probe only; a port that could not be
- * opened, once the probe interval has passed (then the first plan due tries to open
- * it, and a failure fails all of them at once: mbfb_plans_no_port). */
+/* When a plan is due (monotonic us); INT64_MAX if it is not running, or runs on demand
+ * and is not triggered. New settings or a trigger (mbfb_plan_trigger): now. A device in
+ * back-off is due at its next probe only; a port that could not be opened, once the probe
+ * interval has passed (then the first plan due tries to open it, and a failure fails all
+ * of them at once: mbfb_plans_no_port). */
 static int64_t plan_due(mbfb_bus_t *bus, mbfb_plan_t *p)
 {
     mbfb_dev_t *dev = mbfb_devs[p->dev];
+    int period = __atomic_load_n(&p->period_ms, __ATOMIC_RELAXED);
     int64_t due;
     if (!__atomic_load_n(&p->running, __ATOMIC_ACQUIRE))
         return INT64_MAX;
     if (mbfb_plan_parked(p, mbfb_now_us()))
         return INT64_MAX; /* its block is not scanned: stopped until it is (mbfb_plan.c) */
-    if (p->last_start_us == 0 || __atomic_load_n(&p->cfg_seq, __ATOMIC_ACQUIRE) != p->cfg_seen)
+    if (p->last_start_us == 0 || __atomic_load_n(&p->cfg_seq, __ATOMIC_ACQUIRE) != p->cfg_seen ||
+        __atomic_load_n(&p->trigger, __ATOMIC_ACQUIRE) != p->trigger_seen)
         due = 0;
+    else if (period == MBFB_PERIOD_ON_DEMAND)
+        return INT64_MAX; /* refreshed once when set, then on a trigger only */
     else
-        due = p->last_start_us +
-              (int64_t)__atomic_load_n(&p->period_ms, __ATOMIC_RELAXED) * 1000;
-    if (p->failed && dev->heard)
+        due = p->last_start_us + MBFB_MS(period);
+    if (p->failed && dev->heard && period != MBFB_PERIOD_ON_DEMAND)
         due = 0; /* its device was heard: it can answer again now */
-    if (dev->probe_us > 0 && dev->next_probe_us > due)
+    if (mbfb_dev_held(dev) && dev->next_probe_us > due)
         due = dev->next_probe_us;
     if (bus->fd < 0 && bus->reopen_us > due)
         due = bus->reopen_us;
@@ -178,7 +160,8 @@ static int read_items(mbfb_bus_t *bus, const mbfb_plan_t *p, const mbfb_plan_cfg
 {
     int offset = 0, first = 1;
 
-    for (int i = 0; i < cfg->n; offset += cfg->items[i].count, i++) {
+    for (int i = 0; i < cfg->n;
+         offset += mbfb_data_words(cfg->items[i].fc, cfg->items[i].count), i++) {
         mbfb_request_t request;
         int rc;
         if (!tier_read(cfg->items[i].tier, slow))
@@ -219,7 +202,7 @@ static void publish_refresh(mbfb_plan_t *p, const mbfb_plan_cfg_t *cfg, int resu
     } else {
         if (slow) {
             p->slow.read_gen = cfg->slow_gen;
-            p->slow.next_us = start + (int64_t)cfg->slow_ms * 1000;
+            p->slow.next_us = start + MBFB_MS(cfg->slow_ms);
         }
         MBFB_DIAG_INC(dev, refreshes);
         if (dev->last_refresh_us != 0)
@@ -243,6 +226,8 @@ static void run_refresh(mbfb_bus_t *bus, mbfb_plan_t *p)
     int slow, owed, result;
 
     p->last_start_us = start;
+    /* triggers until now are served by this refresh; a later one makes another */
+    p->trigger_seen = __atomic_load_n(&p->trigger, __ATOMIC_ACQUIRE);
     if (!mbfb_plan_read_cfg(p, &cfg))
         return;
     p->cfg_seen = cfg.seq;
