@@ -39,8 +39,9 @@ def sim_spec(st_path: str) -> dict:
             "pace": "0"}
     for item in m.group(1).split():
         key, _, value = item.partition("=")
-        if key == "device":
-            spec["devices"].append(value)
+        if key == "device":   # a generic device's file=NAME: a file beside the test
+            spec["devices"].append(re.sub(r"(?<=[:,])file=(?!/)([^,]+)",
+                                          lambda m: "file=" + os.path.join(HERE, m.group(1)), value))
         elif key in ("format", "baud", "time-scale", "transport", "pace"):
             spec[key] = value
         else:
