@@ -5,9 +5,9 @@ usage: pymodbus_peer.py PORT rtu|ascii     serial server on PORT; prints READY
        pymodbus_peer.py rtu-tcp [mvd94 [poll]]  RTU framer on a TCP server at 127.0.0.1, any
                                            free port (RTU over TCP); prints READY PORT
 Slave 1: holding register at PDU address a = 0x3001 + a, input register = 0x4001 + a
-(pymodbus's sequential block is 1-based), 100 of each; other addresses give
-exception 2. With `mvd94`, slave 1 holds an MV-D94's map instead (MVD94_HR: holding
-registers 0x00..0x21 at the factory settings with SV 123.4 at one decimal; PV 27.5 at input
+(pymodbus's sequential block is 1-based), 100 of each; coil a is ON when (a + 1) % 3 == 0,
+discrete input a when (a + 1) % 5 < 2, 100 of each; other addresses give exception 2.
+With `mvd94`, slave 1 holds an MV-D94's map instead (MVD94_HR: holding registers 0x00..0x21 at the factory settings with SV 123.4 at one decimal; PV 27.5 at input
 register 0x1000), for a device block (tests/fb t_rtutcp_pymodbus.st). With `poll` too, slave 2
 is a generic device for MB_Poll (tests/fb t_poll_pymodbus.st): POLL_COILS at coils 0..19,
 POLL_INPUTS at discrete inputs 10..49, 1..10 at holding registers 0..9, POLL_IR at input
@@ -34,10 +34,14 @@ POLL_IR = [11, 12, 13, 14, 65535]
 if sys.argv[1:3] == ["rtu-tcp", "mvd94"]:
     hr = ModbusSequentialDataBlock(0, [0] + MVD94_HR)
     ir = ModbusSequentialDataBlock(0x1000, [0, 275])
+    bits = {}
 else:
     hr = ModbusSequentialDataBlock(0, [0x3000 + i for i in range(101)])
     ir = ModbusSequentialDataBlock(0, [0x4000 + i for i in range(101)])
-slaves = {1: ModbusSlaveContext(hr=hr, ir=ir)}
+    # bits (mbfb_test.h T_PM_COIL, T_PM_INPUT): index i of the 1-based blocks
+    bits = {"co": ModbusSequentialDataBlock(0, [i % 3 == 0 for i in range(101)]),
+            "di": ModbusSequentialDataBlock(0, [i % 5 < 2 for i in range(101)])}
+slaves = {1: ModbusSlaveContext(hr=hr, ir=ir, **bits)}
 if sys.argv[3:] == ["poll"]:   # each block's first element is address -1 (1-based blocks)
     slaves[2] = ModbusSlaveContext(co=ModbusSequentialDataBlock(0, [0] + POLL_COILS),
                                    di=ModbusSequentialDataBlock(10, [0] + POLL_INPUTS),
