@@ -32,6 +32,11 @@ reports, per scan:
 * pick-up: the share of scans in which the program saw `Valid AND Age = T#0s` (it calls
   `wp_pub`): a new snapshot taken, judged and published in that scan.
 
+With --syscalls, each block's steady program (shims at the first --shims) runs once more for
+as long under `strace -f` (not callgrind): the system calls of the scan thread after the
+first --skip-scans scans, the host's own clock_nanosleep (one per scan) left out; a block
+that waits on nothing and wakes nothing in a steady scan makes none.
+
 Everything listens on ptys only; every process is stopped by pid; the temp dir is removed.
 Needs what wire_pace.py needs (cmake, ninja, gcc/g++, OpenPLC v3's iec2c, the venv) and
 valgrind (Debian package).
@@ -201,6 +206,45 @@ def measure(v: wp.Variant, exe: str, block: str, dev: str, baud: int, fmt: str, 
             "per_fn": {k: (c / n, ir / c) for k, (c, ir) in sorted(per_fn.items())}}
 
 
+SYSCALL = re.compile(r"^(\d+)\s+(\d+):(\d+):(\d+\.\d+)\s+(\w+)\(")
+
+
+def scan_syscalls(exe: str, dev: str, baud: int, fmt: str, port: str, tmp: str, args) -> tuple:
+    """The system calls of the scan thread (the process's first thread: wp_host's loop) in the
+    steady scans, under `strace -f` (not callgrind) for as long as a measured run, the host's
+    own clock_nanosleep (its wait for the next tick) left out: (scans, {name: calls})."""
+    seconds = (args.skip_scans + args.scans) * args.task_ms / 1000.0 + 1.0
+    skip_s = args.skip_scans * args.task_ms / 1000.0 + 1.0
+    out = os.path.join(tmp, "strace.txt")
+    sim = wp.Simulator([dev], baud=baud, fmt=fmt, pace=args.pace, seed=1, link=port,
+                       extra=["--ptyline", "none"] if args.pace else [])
+    sim.start()
+    try:
+        subprocess.run(["strace", "-f", "-qq", "-tt", "-o", out, exe, "0", f"{seconds:g}",
+                        str(args.task_ms)], stdout=subprocess.DEVNULL, check=True,
+                       timeout=seconds * 10 + 120)
+    finally:
+        sim.stop()
+    calls: dict[str, int] = {}
+    main_pid, t0, sleeps = None, None, 0
+    with open(out, encoding="utf-8", errors="replace") as fh:
+        for line in fh:
+            m = SYSCALL.match(line)
+            if not m:
+                continue                # "<... resumed>", signals, exits
+            t = int(m.group(2)) * 3600 + int(m.group(3)) * 60 + float(m.group(4))
+            if main_pid is None:
+                main_pid, t0 = m.group(1), t
+            if m.group(1) != main_pid or t - t0 < skip_s:
+                continue
+            if m.group(5) == "clock_nanosleep":
+                sleeps += 1             # one per scan: the host's, not the program's
+            else:
+                calls[m.group(5)] = calls.get(m.group(5), 0) + 1
+    os.remove(out)
+    return sleeps, calls
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--variant", action="append", metavar="NAME=REF",
@@ -212,6 +256,9 @@ def main() -> int:
     ap.add_argument("--pace", action="store_true",
                     help="the simulator paces its replies at the baud rate (default: answers at once)")
     ap.add_argument("--blocks", default=",".join(b for b, *_ in BLOCKS))
+    ap.add_argument("--syscalls", action="store_true",
+                    help="also count the scan thread's system calls in steady scans (strace -f, "
+                         "the -O0 shims, Period T#30s)")
     args = ap.parse_args()
     variants = [v.split("=", 1) for v in (args.variant or ["now=worktree"])]
     if any(len(v) != 2 or not v[0].isidentifier() for v in variants):
@@ -226,7 +273,7 @@ def main() -> int:
         raise SystemExit("valgrind not found (Debian package valgrind)")
     tmp = tempfile.mkdtemp(prefix="scancost-")
     started = time.monotonic()
-    res = {}
+    res, sys_res = {}, {}
     try:
         for name, ref in variants:
             for o in opts:
@@ -239,8 +286,18 @@ def main() -> int:
                                                                INPUTS.get(block, "")))
                         wp.log(f"[{v.name}] {block} {mode}: {args.skip_scans} + {args.scans} scans under callgrind ...")
                         res[(name, o, block, mode)] = measure(v, exe, block, dev, baud, fmt, port, tmp, args)
+                        if args.syscalls and mode == "steady" and o == opts[0]:
+                            wp.log(f"[{v.name}] {block} steady: system calls under strace ...")
+                            sys_res[(name, block)] = scan_syscalls(exe, dev, baud, fmt, port, tmp, args)
                 shutil.rmtree(v.dir)
         report(res, variants, opts, blocks, args)
+        if sys_res:
+            print("\n| variant | block | steady scans (strace) | system calls of the scan thread besides "
+                  "the host's clock_nanosleep |")
+            print("|---|---|---|---|")
+            for (n, block), (scans, calls) in sys_res.items():
+                listed = ", ".join(f"{k} {c}" for k, c in sorted(calls.items())) or "none"
+                print(f"| {n} | {block} | {scans} | {listed} |")
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     wp.log(f"total {time.monotonic() - started:.0f} s")
