@@ -11,7 +11,8 @@ With `mvd94`, slave 1 holds an MV-D94's map instead (MVD94_HR: holding registers
 register 0x1000), for a device block (tests/fb t_rtutcp_pymodbus.st). With `poll` too, slave 2
 is a generic device for MB_Poll (tests/fb t_poll_pymodbus.st): POLL_COILS at coils 0..19,
 POLL_INPUTS at discrete inputs 10..49, 1..10 at holding registers 0..9, POLL_IR at input
-registers 100..104, coils and holding registers writable. Serves until killed.
+registers 100..104, coils and holding registers writable; slave 3's coil 0 ON pulls slave 2
+off the line (no reply), OFF puts it back. Serves until killed.
 """
 import asyncio
 import sys
@@ -42,17 +43,36 @@ else:
     bits = {"co": ModbusSequentialDataBlock(0, [i % 3 == 0 for i in range(101)]),
             "di": ModbusSequentialDataBlock(0, [i % 5 < 2 for i in range(101)])}
 slaves = {1: ModbusSlaveContext(hr=hr, ir=ir, **bits)}
-if sys.argv[3:] == ["poll"]:   # each block's first element is address -1 (1-based blocks)
+POLL = sys.argv[3:] == ["poll"]
+
+
+class PullSwitch(ModbusSequentialDataBlock):
+    """Slave 3's coil 0 (`poll`): ON pulls slave 2 off the line (no reply at all: the server
+    ignores missing slaves), OFF puts it back, values kept."""
+
+    def setValues(self, address, values):
+        super().setValues(address, values)
+        if values[0] and 2 in ctx.slaves():
+            pulled[2] = ctx[2]
+            del ctx[2]
+        elif not values[0] and 2 in pulled:
+            ctx[2] = pulled.pop(2)
+
+
+if POLL:   # each block's first element is address -1 (1-based blocks)
     slaves[2] = ModbusSlaveContext(co=ModbusSequentialDataBlock(0, [0] + POLL_COILS),
                                    di=ModbusSequentialDataBlock(10, [0] + POLL_INPUTS),
                                    hr=ModbusSequentialDataBlock(0, [0] + list(range(1, 11))),
                                    ir=ModbusSequentialDataBlock(100, [0] + POLL_IR))
+    slaves[3] = ModbusSlaveContext(co=PullSwitch(0, [0, 0]))
+pulled: dict = {}
 ctx = ModbusServerContext(slaves=slaves, single=False)
 
 
 async def rtu_over_tcp():
     """pymodbus's RTU framer on a TCP server: what a transparent gateway carries."""
-    server = ModbusTcpServer(ctx, framer=FramerType.RTU, address=("127.0.0.1", 0))
+    server = ModbusTcpServer(ctx, framer=FramerType.RTU, address=("127.0.0.1", 0),
+                             ignore_missing_slaves=POLL)
     await server.serve_forever(background=True)
     print("READY", server.transport.sockets[0].getsockname()[1], flush=True)
     await server.serving
