@@ -66,6 +66,9 @@ BLOCKS = (("Counter_MTS9", "mts9:1", 115200, "8N1"),
 INPUTS = {"MB_Poll": ", Fc1 := 1, Addr1 := 0, Count1 := 20, Fc2 := 3, Addr2 := 0, Count2 := 10, "
                      "Fc3 := 2, Addr3 := 10, Count3 := 40, Fc4 := 4, Addr4 := 100, Count4 := 5"}
 MODES = (("steady", "T#30s"), ("published", "T#1s"), ("pick-up", "T#0s"))
+# a block's own period for a mode: MB_Poll's T#0s refreshes on Trigger only, T#1ms as often as
+# the line allows
+PERIODS = {("MB_Poll", "T#0s"): "T#1ms"}
 SHIMS = {"O0": "Debug", "O2": "RelWithDebInfo"}
 
 
@@ -211,8 +214,10 @@ SYSCALL = re.compile(r"^(\d+)\s+(\d+):(\d+):(\d+\.\d+)\s+(\w+)\(")
 
 def scan_syscalls(exe: str, dev: str, baud: int, fmt: str, port: str, tmp: str, args) -> tuple:
     """The system calls of the scan thread (the process's first thread: wp_host's loop) in the
-    steady scans, under `strace -f` (not callgrind) for as long as a measured run, the host's
-    own clock_nanosleep (its wait for the next tick) left out: (scans, {name: calls})."""
+    steady scans, under `strace -f` (not callgrind) for as long as a measured run: those
+    before each of the host's clock_nanosleep (its wait for the next tick, left out) after the
+    first --skip-scans, so not the host's report and exit after its last scan:
+    (scans, {name: calls})."""
     seconds = (args.skip_scans + args.scans) * args.task_ms / 1000.0 + 1.0
     skip_s = args.skip_scans * args.task_ms / 1000.0 + 1.0
     out = os.path.join(tmp, "strace.txt")
@@ -226,7 +231,7 @@ def scan_syscalls(exe: str, dev: str, baud: int, fmt: str, port: str, tmp: str, 
     finally:
         sim.stop()
     calls: dict[str, int] = {}
-    main_pid, t0, sleeps = None, None, 0
+    main_pid, t0, sleeps, pending = None, None, 0, []
     with open(out, encoding="utf-8", errors="replace") as fh:
         for line in fh:
             m = SYSCALL.match(line)
@@ -239,9 +244,12 @@ def scan_syscalls(exe: str, dev: str, baud: int, fmt: str, port: str, tmp: str, 
                 continue
             if m.group(5) == "clock_nanosleep":
                 sleeps += 1             # one per scan: the host's, not the program's
+                for name in pending:    # made in a scan: counted
+                    calls[name] = calls.get(name, 0) + 1
+                pending = []
             else:
-                calls[m.group(5)] = calls.get(m.group(5), 0) + 1
-    os.remove(out)
+                pending.append(m.group(5))
+    os.remove(out)                      # pending: the host's report and exit after its last scan
     return sleeps, calls
 
 
@@ -282,7 +290,8 @@ def main() -> int:
                     for mode, period in MODES:
                         key = f"{block}-{mode}"
                         port = os.path.join(tmp, f"{v.name}-{key}")
-                        exe = v.compile(key, wp.device_program(block, port, baud, fmt, period,
+                        exe = v.compile(key, wp.device_program(block, port, baud, fmt,
+                                                               PERIODS.get((block, period), period),
                                                                INPUTS.get(block, "")))
                         wp.log(f"[{v.name}] {block} {mode}: {args.skip_scans} + {args.scans} scans under callgrind ...")
                         res[(name, o, block, mode)] = measure(v, exe, block, dev, baud, fmt, port, tmp, args)
