@@ -5,7 +5,8 @@
  * One request (a posted one or a plan read) = up to 1 + retries failed attempts:
  *   wait until the line is silent (the gap; a whole response timeout, the settle, after a
  *   failed attempt to another slave), send, receive, validate (send_and_check).
- * An attempt is one of four steps, chosen by the device's state and the request's:
+ * An attempt is one of four steps (attempt_step_t), chosen by the device's protocol state
+ * (mbfb_device.c) and what the request has shown so far (next_step):
  *   probe      the device is in back-off: the read of its newest outstanding shape;
  *   resync     the device is out of step: a read no late reply can answer
  *              (mbfb_resync.c); its answer brings it back in step;
@@ -17,7 +18,8 @@
  * until a read-back (FC03 of the written registers, FC01 of the written coils, in step)
  * shows it: equal -> DONE;
  * differs -> MBFB_WRITE_IDEMPOTENT sends it again, MBFB_WRITE_ONCE ends UNCONFIRMED.
- * Back-off: three failed requests in a row start it; then one probe per interval.
+ * Back-off: three failed requests in a row start it; then one probe per interval
+ * (mbfb_device.c).
  */
 #include <limits.h>
 #include <string.h>
@@ -44,50 +46,6 @@ static void count_failure(mbfb_dev_t *dev, int err)
         MBFB_DIAG_SET(dev, last_exception, (uint32_t)(err - MBFB_E_EXCEPTION_BASE));
     } else
         MBFB_DIAG_INC(dev, bad_replies);
-}
-
-/* Sum the 100 ms buckets of the second before `now` into bus->busy_permille (what the
- * scan reads: one load). Returns when the window will hold no busy time any more (the
- * newest busy bucket leaves it), or INT64_MAX when it holds none now: the idle worker
- * wakes then once to store 0 (worker loop), so a quiet line reads 0 a second after its
- * last attempt without a wake per bucket. */
-int64_t mbfb_busy_update(mbfb_bus_t *bus, int64_t now)
-{
-    uint32_t epoch = (uint32_t)(now / 100000), busy = 0, age = MBFB_BUSY_BUCKETS;
-    for (int i = 0; i < MBFB_BUSY_BUCKETS; i++) {
-        uint32_t a = epoch - __atomic_load_n(&bus->busy_epoch[i], __ATOMIC_RELAXED);
-        uint32_t us = __atomic_load_n(&bus->busy_us[i], __ATOMIC_RELAXED);
-        if (a < MBFB_BUSY_BUCKETS && us > 0) {
-            busy += us;
-            age = a < age ? a : age; /* the newest busy bucket */
-        }
-    }
-    __atomic_store_n(&bus->busy_permille, busy / 1000 > 1000 ? 1000u : busy / 1000,
-                     __ATOMIC_RELAXED);
-    return busy == 0 ? INT64_MAX : (now / 100000 - age + MBFB_BUSY_BUCKETS) * 100000;
-}
-
-/* Account `us` of line time in the 100 ms bucket of now (busy_permille). */
-static void busy_add(mbfb_bus_t *bus, int64_t now, int64_t us)
-{
-    uint32_t epoch = (uint32_t)(now / 100000);
-    int i = (int)(epoch % MBFB_BUSY_BUCKETS);
-    if (us <= 0)
-        return;
-    if (__atomic_load_n(&bus->busy_epoch[i], __ATOMIC_RELAXED) != epoch) {
-        __atomic_store_n(&bus->busy_us[i], 0u, __ATOMIC_RELAXED);
-        __atomic_store_n(&bus->busy_epoch[i], epoch, __ATOMIC_RELEASE);
-    }
-    __atomic_fetch_add(&bus->busy_us[i], (uint32_t)us, __ATOMIC_RELAXED);
-    mbfb_busy_update(bus, now);
-}
-
-/* The device answered (or was heard): out of back-off, its failures count from 0 again. */
-void mbfb_end_backoff(mbfb_dev_t *dev)
-{
-    dev->fails = 0;
-    dev->probe_us = 0;
-    MBFB_DIAG_SET(dev, offline, 0u);
 }
 
 /* Wait for a silent line before an attempt to `slave`: the gap, or, after a failed attempt
@@ -180,7 +138,7 @@ static int send_and_check(mbfb_bus_t *bus, mbfb_dev_t *dev, int fc, int addr, in
     int64_t t0;
 
     bus->timeout_us = bus->cfg.response_timeout_ms > 0
-                          ? bus->cfg.response_timeout_ms * 1000
+                          ? (int)MBFB_MS(bus->cfg.response_timeout_ms)
                           : mbfb_response_timeout_us(&bus->timing, bus->cfg.framing, len,
                                                      mbfb_reply_len(req));
     if (mbfb_wait_quiet(bus, dev->slave) < 0)
@@ -194,12 +152,12 @@ static int send_and_check(mbfb_bus_t *bus, mbfb_dev_t *dev, int fc, int addr, in
     if (req[0] == 0) { /* broadcast: no reply; let the slaves process it */
         bus->quiet_from_us = t0 + (int64_t)mbfb_wire_len(bus->cfg.framing, len) *
                                       bus->timing.char_us + MBFB_TURNAROUND_US;
-        busy_add(bus, t0, bus->quiet_from_us - t0 + bus->timing.gap_us);
+        mbfb_busy_add(bus, t0, bus->quiet_from_us - t0 + bus->timing.gap_us);
         return MBFB_OK;
     }
     rc = receive(bus, req, rsp);
     bus->quiet_from_us = mbfb_now_us();
-    busy_add(bus, bus->quiet_from_us, bus->quiet_from_us - t0 + bus->timing.gap_us);
+    mbfb_busy_add(bus, bus->quiet_from_us, bus->quiet_from_us - t0 + bus->timing.gap_us);
     return judge_reply(bus, dev, req, rsp, rc, t0, out);
 }
 
@@ -214,7 +172,8 @@ typedef struct attempts {
     int err;                  /* the failure reported when the budget runs out          */
     int unknown;              /* the write went out without a valid echo: applied or not
                                  is unknown until a read-back shows it                  */
-    int probe;                /* the device is in back-off: its first attempt probes it */
+    int probe;                /* the device was held (back-off, shapes full): its first
+                                 attempt out of step probes it                          */
     int answered;             /* a valid reply (or exception) came from the device      */
     int sent;                 /* attempts put on the wire                              */
     uint16_t words[MBFB_MAX_READ]; /* what a probe, resync read or read-back read        */
@@ -222,6 +181,14 @@ typedef struct attempts {
 
 /* A step's result when the request goes on with its next attempt. */
 #define STEP_AGAIN INT_MIN
+
+/* The steps an attempt can be (the file comment). */
+typedef enum attempt_step {
+    STEP_SEND,     /* in step: the request itself                                       */
+    STEP_READBACK, /* in step after a write of unknown outcome: the written range read */
+    STEP_RESYNC,   /* out of step: a read no late reply can answer                      */
+    STEP_PROBE     /* out of step, the device was held: its newest outstanding read      */
+} attempt_step_t;
 
 /* Put one attempt on the wire (a retry when it is not the request's first). */
 static int attempt(mbfb_bus_t *bus, attempts_t *a, int fc, int addr, int count,
@@ -238,6 +205,16 @@ static void attempt_failed(mbfb_bus_t *bus, attempts_t *a, int fc, int addr, int
 {
     mbfb_out_of_step(bus, a->dev, fc, addr, count, vals, mbfb_now_us());
     a->failures++;
+}
+
+/* The step of the next attempt, by the device's state and the request's (*r: a probe's
+ * read). Out of step, the line has been listened to first (run_attempts), so a late reply
+ * heard now has freed its shape for the choice. */
+static attempt_step_t next_step(mbfb_bus_t *bus, const attempts_t *a, mbfb_range_t *r)
+{
+    if (mbfb_dev_in_step(bus, a->dev))
+        return a->unknown ? STEP_READBACK : STEP_SEND;
+    return a->probe && mbfb_pick_probe(a->dev, r) ? STEP_PROBE : STEP_RESYNC;
 }
 
 /* The read-back of a write of unknown outcome is in a->words: equal -> applied (once);
@@ -267,7 +244,7 @@ static int probe_step(mbfb_bus_t *bus, attempts_t *a, const mbfb_range_t *r)
     attempt_failed(bus, a, r->fc, r->addr, r->count, NULL);
     if (rc == MBFB_OK || rc >= MBFB_E_EXCEPTION_BASE) {
         a->answered = 1;
-        mbfb_end_backoff(a->dev);
+        mbfb_dev_event(bus, a->dev, MBFB_EV_ANSWERED, mbfb_now_us());
         a->budget = a->failures + 1;
     } else {
         a->err = rc;
@@ -380,48 +357,21 @@ static int run_attempts(mbfb_bus_t *bus, attempts_t *a)
             return a->req->write_sent ? MBFB_E_UNCONFIRMED : MBFB_E_CANCELLED;
         if (a->failures >= a->budget)
             return a->unknown ? MBFB_E_UNCONFIRMED : a->err;
-        if (a->dev->in_step) {
-            rc = a->unknown ? readback_step(bus, a) : send_step(bus, a);
-            continue;
-        }
-        /* only a probe or a resync read may go; listen first: a late reply heard now
-         * frees its shape for the choice */
-        if (mbfb_wait_quiet(bus, a->dev->slave) < 0)
+        /* out of step only a probe or a resync read may go; listen first: a late reply
+         * heard now frees its shape for the choice */
+        if (!mbfb_dev_in_step(bus, a->dev) && mbfb_wait_quiet(bus, a->dev->slave) < 0)
             return -MBFB_E_PORTLOST;
-        rc = a->probe && mbfb_pick_probe(a->dev, &r) ? probe_step(bus, a, &r)
-                                                      : resync_step(bus, a);
+        switch (next_step(bus, a, &r)) {
+        case STEP_SEND:     rc = send_step(bus, a); break;
+        case STEP_READBACK: rc = readback_step(bus, a); break;
+        case STEP_RESYNC:   rc = resync_step(bus, a); break;
+        case STEP_PROBE:    rc = probe_step(bus, a, &r); break;
+        }
     }
     return rc;
 }
 
-/* ---- back-off ---------------------------------------------------------------------- */
-
-/* Back-off bookkeeping after a request that put something on the wire: three failed
- * requests in a row start it; then one probe per interval (MBFB_PROBE_MIN_MS, or
- * MBFB_PROBE_SHARE of the request's response timeout if longer), the same however long
- * the device stays silent: it is found again within one interval of its return. */
-static void update_backoff(mbfb_bus_t *bus, mbfb_dev_t *dev, int answered)
-{
-    int64_t interval = (int64_t)MBFB_PROBE_SHARE * bus->timeout_us;
-
-    if (answered) {
-        mbfb_end_backoff(dev);
-        return;
-    }
-    if (++dev->fails < MBFB_OFFLINE_AFTER)
-        return;
-    if (interval < (int64_t)MBFB_PROBE_MIN_MS * 1000)
-        interval = (int64_t)MBFB_PROBE_MIN_MS * 1000;
-    dev->probe_us = interval;
-    dev->next_probe_us = mbfb_now_us() + dev->probe_us;
-    MBFB_DIAG_SET(dev, offline, 1u);
-}
-
-/* Probes in one MBFB_LATE_MAX_MS, with the failed requests before back-off, must leave
- * reply shapes free: a dead device is probed, never refused for want of a shape. */
-typedef char mbfb_probes_leave_shapes_free[
-    MBFB_LATE_MAX_MS / MBFB_PROBE_MIN_MS + 1 + MBFB_DEFAULT_RETRIES + MBFB_OFFLINE_AFTER <=
-            MBFB_OUTSTANDING_MAX ? 1 : -1]; /* C and C++ alike (no _Static_assert in C++11) */
+/* ---- the port, a held device ------------------------------------------------------ */
 
 /* Port lost: close it and end everything queued. The next request reopens it. */
 static void port_lost(mbfb_bus_t *bus, mbfb_dev_t *dev)
@@ -431,15 +381,16 @@ static void port_lost(mbfb_bus_t *bus, mbfb_dev_t *dev)
     mbfb_slot_fail_queued(bus, MBFB_E_PORTLOST);
 }
 
-/* A device in back-off before its next probe: no bus time (MBFB_E_OFFLINE); but a late
- * reply of the device waiting in the port is heard first (the silence wait reads it), and
- * retiring its shape ends the back-off. 0 when the request may go. */
+/* A held device (back-off, shapes full) before its next probe: no bus time
+ * (MBFB_E_OFFLINE); but a late reply of the device waiting in the port is heard first (the
+ * silence wait reads it), and retiring its shape ends the back-off. 0 when the request may
+ * go. */
 static int held_back(mbfb_bus_t *bus, mbfb_dev_t *dev)
 {
-    if (dev->probe_us > 0 && mbfb_now_us() < dev->next_probe_us && bus->fd >= 0 &&
+    if (mbfb_dev_held(dev) && mbfb_now_us() < dev->next_probe_us && bus->fd >= 0 &&
         bus->be->needs_resync && mbfb_fd_wait_input(bus->fd, 0) == 1)
         (void)mbfb_wait_quiet(bus, dev->slave); /* a lost port shows in the next attempt */
-    if (dev->probe_us > 0 && mbfb_now_us() < dev->next_probe_us) {
+    if (mbfb_dev_held(dev) && mbfb_now_us() < dev->next_probe_us) {
         set_error(dev, MBFB_E_OFFLINE);
         return MBFB_E_OFFLINE;
     }
@@ -457,24 +408,10 @@ static int open_port(mbfb_bus_t *bus, mbfb_dev_t *dev)
         return 0;
     now = mbfb_now_us();
     err = rc == -MBFB_E_BAUD || rc == -MBFB_E_DIRECTION ? -rc : MBFB_E_NOPORT;
-    bus->reopen_us = now + (int64_t)MBFB_PROBE_MIN_MS * 1000;
+    bus->reopen_us = now + MBFB_MS(MBFB_PROBE_MIN_MS);
     set_error(dev, err);
     mbfb_plans_no_port(bus, now, err); /* the caller's plan included: it publishes nothing */
     return err;
-}
-
-/* The outstanding set is full (nothing was sent): the device waits, as in back-off, until
- * its oldest shape expires. */
-static void wait_for_shapes(mbfb_dev_t *dev)
-{
-    int64_t t = dev->n_outstanding > 0 ? dev->outstanding[0].t_us : mbfb_now_us();
-
-    for (int i = 1; i < dev->n_outstanding; i++)
-        t = dev->outstanding[i].t_us < t ? dev->outstanding[i].t_us : t;
-    if (dev->probe_us <= 0)
-        dev->probe_us = (int64_t)MBFB_PROBE_MIN_MS * 1000;
-    dev->next_probe_us = t + (int64_t)MBFB_LATE_MAX_MS * 1000;
-    MBFB_DIAG_SET(dev, offline, 1u);
 }
 
 /* Run one request of a device: back-off, port, attempts. Returns its result. */
@@ -490,18 +427,16 @@ int mbfb_device_request(mbfb_bus_t *bus, mbfb_request_t *request)
         return MBFB_E_CANCELLED; /* shutting down: no port opened, nothing sent */
     if ((rc = open_port(bus, dev)) != 0)
         return rc;
-    if (!bus->be->needs_resync)
-        dev->in_step = 1;
     MBFB_DIAG_INC(dev, requests);
     memset(&a, 0, sizeof a);
     a.req = request;
     a.dev = dev;
     a.err = MBFB_E_TIMEOUT;
-    /* One attempt (a probe) for a device in back-off, and for one still out of step
-     * because its previous request ran out of attempts: each failed resync read uses
-     * up a reply shape for MBFB_LATE_MAX_MS, which a dead device must not exhaust. */
-    a.probe = dev->probe_us > 0;
-    a.budget = a.probe || !dev->in_step ? 1 : 1 + bus->cfg.retries;
+    /* One attempt (a probe) for a held device, and for one still out of step because
+     * its previous request ran out of attempts: each failed resync read uses up a reply
+     * shape for MBFB_LATE_MAX_MS, which a dead device must not exhaust. */
+    a.probe = mbfb_dev_held(dev);
+    a.budget = a.probe || !mbfb_dev_in_step(bus, dev) ? 1 : 1 + bus->cfg.retries;
     request->write_sent = 0;
     rc = run_attempts(bus, &a);
     if (rc == -MBFB_E_PORTLOST) {
@@ -510,9 +445,10 @@ int mbfb_device_request(mbfb_bus_t *bus, mbfb_request_t *request)
          * is unknown, not failed (a read-back needs the port) */
         rc = request->write_sent ? MBFB_E_UNCONFIRMED : MBFB_E_PORTLOST;
     } else if (a.sent > 0) {
-        update_backoff(bus, dev, a.answered);
+        mbfb_dev_event(bus, dev, a.answered ? MBFB_EV_ANSWERED : MBFB_EV_UNANSWERED,
+                       mbfb_now_us());
     } else if (rc == MBFB_E_OFFLINE) {
-        wait_for_shapes(dev);
+        mbfb_dev_event(bus, dev, MBFB_EV_SHAPES_FULL, mbfb_now_us());
     }
     set_error(dev, rc);
     return rc;

@@ -61,7 +61,8 @@ static int normalise(mbfb_bus_config_t *c)
         return MBFB_E_INVAL;
     if (c->retries < 0)
         c->retries = MBFB_DEFAULT_RETRIES;
-    if (c->retries > 20 || c->response_timeout_ms < 0 || c->response_timeout_ms > 60000)
+    if (c->retries > MBFB_MAX_RETRIES || c->response_timeout_ms < 0 ||
+        c->response_timeout_ms > MBFB_MAX_TIMEOUT_MS)
         return MBFB_E_INVAL;
     if (c->direction < MBFB_DIR_NONE || c->direction > MBFB_DIR_GPIO ||
         (c->direction != MBFB_DIR_NONE && is_tcp(c->port)) || /* the gateway switches */
@@ -328,7 +329,7 @@ int mbfb_dev_open(int bus, int slave)
             if (d != NULL) {
                 d->bus = bus;
                 d->slave = slave;
-                d->in_step = 1; /* nothing sent yet: nothing can be late */
+                d->state = MBFB_DEV_IN_STEP; /* nothing sent yet: nothing can be late */
                 __atomic_store_n(&mbfb_devs[i], d, __ATOMIC_RELEASE);
                 rc = i;
             }

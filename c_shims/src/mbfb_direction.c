@@ -214,7 +214,7 @@ static int64_t wait_sent(mbfb_bus_t *bus, int64_t written, int wire_bytes)
     int64_t char_us = bus->timing.char_us, now;
     int64_t on_wire = written + (int64_t)wire_bytes * char_us;
     int64_t step = char_us / 4 > 20 ? char_us / 4 : 20;
-    int64_t limit = on_wire + (int64_t)wire_bytes * char_us + 100000; /* a stuck UART */
+    int64_t limit = on_wire + (int64_t)wire_bytes * char_us + MBFB_STUCK_UART_US;
     unsigned int lsr;
 
     sleep_until(on_wire);

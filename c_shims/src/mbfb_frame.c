@@ -147,36 +147,28 @@ int mbfb_check_reply(const uint8_t *req, const uint8_t *rsp, int len)
     }
 }
 
-/* Check a request's arguments against the protocol limits. */
+/* Check a request's arguments against the protocol limits: the most items the function
+ * carries, a read not broadcast, a write's values given, the range inside the map. */
 int mbfb_check_args(int slave, int fc, int addr, int count, const uint16_t *values)
 {
-    if (addr < 0 || addr >= MBFB_ADDR_SPACE)
-        return MBFB_E_INVAL;
+    int max;
+
     switch (fc) {
     case MBFB_FC_READ_COILS:
-    case MBFB_FC_READ_DISCRETE:
+    case MBFB_FC_READ_DISCRETE:  max = MBFB_MAX_READ_BITS; break;
     case MBFB_FC_READ_HOLDING:
-    case MBFB_FC_READ_INPUT:
-        if (slave == 0 || count < 1 || count > mbfb_read_max(fc))
-            return MBFB_E_INVAL; /* broadcast reads get no reply: refused */
-        break;
+    case MBFB_FC_READ_INPUT:     max = MBFB_MAX_READ; break;
     case MBFB_FC_WRITE_COIL:
-    case MBFB_FC_WRITE_SINGLE:
-        if (count != 1 || values == NULL)
-            return MBFB_E_INVAL;
-        break;
-    case MBFB_FC_WRITE_COILS:
-        if (count < 1 || count > MBFB_MAX_WRITE_BITS || values == NULL)
-            return MBFB_E_INVAL;
-        break;
-    case MBFB_FC_WRITE_MULTIPLE:
-        if (count < 1 || count > MBFB_MAX_WRITE || values == NULL)
-            return MBFB_E_INVAL;
-        break;
-    default:
-        return MBFB_E_INVAL;
+    case MBFB_FC_WRITE_SINGLE:   max = 1; break;
+    case MBFB_FC_WRITE_COILS:    max = MBFB_MAX_WRITE_BITS; break;
+    case MBFB_FC_WRITE_MULTIPLE: max = MBFB_MAX_WRITE; break;
+    default:                     return MBFB_E_INVAL;
     }
-    return addr + count > MBFB_ADDR_SPACE ? MBFB_E_INVAL : MBFB_OK;
+    if (count < 1 || count > max || addr < 0 || addr + count > MBFB_ADDR_SPACE)
+        return MBFB_E_INVAL;
+    if (mbfb_fc_is_read(fc) ? slave == 0 : values == NULL)
+        return MBFB_E_INVAL; /* broadcast reads get no reply; a write needs its values */
+    return MBFB_OK;
 }
 
 /* Value of an upper- or lower-case hex digit, or -1. */

@@ -30,23 +30,29 @@ extern "C" {
 
 #define MBFB_COIL_ON       0xFF00 /* FC05's value for ON (OFF: 0x0000)              */
 
+/* Sets of function codes as bit masks (bit fc): one test where the scan side asks. */
+#define MBFB_FC_BIT(fc) (1u << (fc))
+#define MBFB_FCS_BITS  (MBFB_FC_BIT(MBFB_FC_READ_COILS) | MBFB_FC_BIT(MBFB_FC_READ_DISCRETE) | \
+                        MBFB_FC_BIT(MBFB_FC_WRITE_COIL) | MBFB_FC_BIT(MBFB_FC_WRITE_COILS))
+#define MBFB_FCS_READ  (MBFB_FC_BIT(MBFB_FC_READ_COILS) | MBFB_FC_BIT(MBFB_FC_READ_DISCRETE) | \
+                        MBFB_FC_BIT(MBFB_FC_READ_HOLDING) | MBFB_FC_BIT(MBFB_FC_READ_INPUT))
+#define MBFB_FCS_WRITE (MBFB_FC_BIT(MBFB_FC_WRITE_COIL) | MBFB_FC_BIT(MBFB_FC_WRITE_SINGLE) | \
+                        MBFB_FC_BIT(MBFB_FC_WRITE_COILS) | MBFB_FC_BIT(MBFB_FC_WRITE_MULTIPLE))
+
 /** Does fc read or write bits (coils, discrete inputs: FC01, 02, 05, 15)? */
 static inline int mbfb_fc_is_bits(int fc)
 {
-    return fc == MBFB_FC_READ_COILS || fc == MBFB_FC_READ_DISCRETE ||
-           fc == MBFB_FC_WRITE_COIL || fc == MBFB_FC_WRITE_COILS;
+    return (unsigned)fc < 32 && (MBFB_FCS_BITS >> fc & 1u);
 }
 /** Is fc a read (FC01, 02, 03, 04)? */
 static inline int mbfb_fc_is_read(int fc)
 {
-    return fc == MBFB_FC_READ_HOLDING || fc == MBFB_FC_READ_INPUT ||
-           fc == MBFB_FC_READ_COILS || fc == MBFB_FC_READ_DISCRETE;
+    return (unsigned)fc < 32 && (MBFB_FCS_READ >> fc & 1u);
 }
 /** Is fc a write (FC05, 06, 15, 16)? */
 static inline int mbfb_fc_is_write(int fc)
 {
-    return fc == MBFB_FC_WRITE_SINGLE || fc == MBFB_FC_WRITE_MULTIPLE ||
-           fc == MBFB_FC_WRITE_COIL || fc == MBFB_FC_WRITE_COILS;
+    return (unsigned)fc < 32 && (MBFB_FCS_WRITE >> fc & 1u);
 }
 /** The other read function of the same kind: input registers for holding ones and back,
  *  discrete inputs for coils and back. */
@@ -81,6 +87,10 @@ static inline int mbfb_data_words(int fc, int count)
     return mbfb_fc_is_bits(fc) ? MBFB_BIT_WORDS(count) : count;
 }
 
+/* ---- units ------------------------------------------------------------------- */
+/** Microseconds (the worker's clock, mbfb_now_us) in `ms` milliseconds. */
+#define MBFB_MS(ms) ((int64_t)(ms) * 1000)
+
 /* ---- sizes of this library -------------------------------------------------- */
 #define MBFB_MAX_BUSES     16   /* 4 bits of a request handle                     */
 #define MBFB_MAX_SLOTS     64   /* request slots per bus; 6 bits of a handle      */
@@ -100,6 +110,8 @@ static inline int mbfb_data_words(int fc, int count)
  * for as long (the longest of its plans' bounds, at least MBFB_STALE_MIN_MS). */
 #define MBFB_STALE_PERIODS   10
 #define MBFB_STALE_MIN_MS    2000
+#define MBFB_MAX_RETRIES     20 /* mbfb_bus_config_t.retries at most                */
+#define MBFB_MAX_TIMEOUT_MS  60000 /* response_timeout_ms at most (a minute)         */
 #define MBFB_SCAN_MAX_MS     60000 /* a longer gap between takes is a stop, not a task's
                                       interval (the bound does not learn from it)     */
 #define MBFB_DEFAULT_RETRIES 3  /* SetPro manual 5.6: retry at least 3 times      */
@@ -107,8 +119,8 @@ static inline int mbfb_data_words(int fc, int count)
 /* A device in back-off is probed (one attempt) once per probe interval: at least
  * MBFB_PROBE_MIN_MS, and MBFB_PROBE_SHARE response timeouts, so a dead device costs at
  * most 1/MBFB_PROBE_SHARE of the line however long it stays dead, and a device that
- * comes back is found within one interval (README "Back-off"). A port that could not be
- * opened is tried again after MBFB_PROBE_MIN_MS. */
+ * comes back is found within one interval (mbfb_device.c; README "Failures and what the
+ * worker does"). A port that could not be opened is tried again after MBFB_PROBE_MIN_MS. */
 #define MBFB_PROBE_MIN_MS    500
 #define MBFB_PROBE_SHARE     10
 #define MBFB_TURNAROUND_US   10000 /* after a broadcast: SetPro processing max 10 ms */
@@ -126,6 +138,8 @@ static inline int mbfb_data_words(int fc, int count)
  * time a started reply may take. A configured TimeoutMs replaces the whole timeout. */
 #define MBFB_NET_ALLOWANCE_US 100000
 #define MBFB_CONNECT_MS      1000 /* TCP connect of RTU over TCP; a stuck send          */
+#define MBFB_STUCK_UART_US   100000 /* a UART that has not sent a frame this long after its
+                                       wire time is stuck (direction control's drain)  */
 
 /* ---- CRC / LRC / frames (mbfb_frame.c) --------------------------------------
  * A "frame" here is slave id + PDU, without CRC, LRC or MBAP header: the backends
@@ -133,8 +147,9 @@ static inline int mbfb_data_words(int fc, int count)
 uint16_t mbfb_crc16(const uint8_t *buf, int len);   /* CRC-16/MODBUS, send low byte first */
 uint8_t  mbfb_lrc(const uint8_t *buf, int len);     /* two's complement of the byte sum   */
 
-/** Build the request frame for fc 3/4/6/16 into out (>= 7 + 2*count bytes).
- *  Returns its length. Arguments must already be validated. */
+/** Build the request frame for fc 1/2/3/4/5/6/15/16 into out (at most 7 + 2 * 123 bytes:
+ *  FC16; FC15 7 + ceil(count / 8)). Returns its length. Arguments must already be
+ *  validated (mbfb_check_args). */
 int mbfb_build_request(uint8_t *out, int slave, int fc, int addr, int count,
                        const uint16_t *values);
 
@@ -142,9 +157,9 @@ int mbfb_build_request(uint8_t *out, int slave, int fc, int addr, int count,
 int mbfb_reply_len(const uint8_t *req);
 
 /** Check reply frame `rsp` (len bytes) against request frame `req`: slave, function,
- *  byte count, the echo of FC06/FC16, exception. Returns 0 when good (read values
- *  are then at rsp+3), MBFB_E_EXCEPTION_BASE + code for an exception reply, or
- *  MBFB_E_BADREPLY. */
+ *  byte count (2 x registers, ceil(bits / 8)), the echo of FC05/06/15/16, exception.
+ *  Returns 0 when good (read values, or bytes of bits, are then at rsp+3),
+ *  MBFB_E_EXCEPTION_BASE + code for an exception reply, or MBFB_E_BADREPLY. */
 int mbfb_check_reply(const uint8_t *req, const uint8_t *rsp, int len);
 
 /** The next whole, checked reply frame in bytes heard on the line (buf[*pos..n)): a
@@ -327,7 +342,7 @@ typedef struct mbfb_shape {
                                 words 2..5, mbfb_build_request)                      */
     int64_t t_us;            /* when that attempt was sent                         */
     int readable;            /* reads: inside a range that read well, so never answered
-                                with a fixed exception (mbfb_worker.c)              */
+                                with a fixed exception (mbfb_resync.c)              */
 } mbfb_shape_t;
 
 /** A read range known to be readable on the device (plan items, good reads). */
@@ -335,16 +350,40 @@ typedef struct mbfb_range {
     int fc, addr, count;
 } mbfb_range_t;
 
+/** A device's protocol state (README "Late replies"; mbfb_device.c: its transitions, the
+ *  only place that writes it). Serial lines (and RTU over TCP) have no transaction id, so a
+ *  failed attempt leaves the device out of step; Modbus TCP reconnects instead and knows
+ *  only IN_STEP and BACKOFF. */
+typedef enum mbfb_dev_state {
+    MBFB_DEV_IN_STEP = 0,    /* no reply of an earlier request can still come: a request
+                                goes as it is (zero: a new device)                   */
+    MBFB_DEV_OUT_OF_STEP,    /* a failed attempt's reply may still come: only resync
+                                reads go, until one is answered                      */
+    MBFB_DEV_BACKOFF,        /* MBFB_OFFLINE_AFTER requests in a row unanswered: nothing
+                                goes before next_probe_us, then one probe            */
+    MBFB_DEV_SHAPES_FULL     /* out of step with every reply shape outstanding: nothing
+                                goes until the oldest expires (next_probe_us), then one
+                                probe                                                */
+} mbfb_dev_state_t;
+
+/** What happens to a device (mbfb_dev_event). */
+typedef enum mbfb_dev_event {
+    MBFB_EV_ATTEMPT_FAILED,  /* an attempt got no valid reply (its reply may come late)  */
+    MBFB_EV_RESYNCED,        /* a resync read was answered: nothing older can follow     */
+    MBFB_EV_ANSWERED,        /* the device answered a request, or was heard answering     */
+    MBFB_EV_UNANSWERED,      /* a request that put attempts on the wire got no answer     */
+    MBFB_EV_SHAPES_FULL      /* no resync read possible: every reply shape outstanding    */
+} mbfb_dev_event_t;
+
 typedef struct mbfb_dev {
     int bus, slave;          /* set once at mbfb_dev_open, before publication     */
     mbfb_diag_t diag;        /* each field written by the worker with __atomic     */
     uint32_t diag_seq;       /* atomic: bumped after every diag change            */
-    /* back-off: worker only */
-    int fails;               /* consecutive failed transactions                   */
-    int64_t probe_us;        /* probe interval; > 0: in back-off                  */
-    int64_t next_probe_us;
-    /* resynchronisation: worker only */
-    int in_step;             /* 1: no reply of an earlier request can still come  */
+    /* protocol state: worker only, written by mbfb_dev_event alone */
+    mbfb_dev_state_t state;
+    int fails;               /* requests unanswered in a row (MBFB_OFFLINE_AFTER)  */
+    int64_t next_probe_us;   /* BACKOFF, SHAPES_FULL: nothing goes before then     */
+    /* resynchronisation: worker only (mbfb_resync.c) */
     int n_outstanding;       /* reply shapes of failed attempts that may still come */
     mbfb_shape_t outstanding[MBFB_OUTSTANDING_MAX];
     int n_known;             /* ranges that read well, most recent first          */
@@ -432,6 +471,7 @@ typedef struct mbfb_plan {
 
 /* ---- bus ----------------------------------------------------------------- */
 #define MBFB_BUSY_BUCKETS 10  /* busy_permille: 10 buckets of 100 ms */
+#define MBFB_BUSY_BUCKET_US 100000
 
 typedef struct mbfb_bus {
     char *port;              /* as given (tcp://host:port or a path)              */
@@ -454,7 +494,7 @@ typedef struct mbfb_bus {
     uint32_t stray_bytes;    /* atomic: bytes discarded outside replies (diag)     */
     uint8_t heard[MBFB_HEARD_MAX]; /* worker: the last bytes heard during the silence
                                 wait before this attempt (mbfb_serial_quiet), for late
-                                replies (mbfb_worker.c, hear_late_replies)           */
+                                replies (mbfb_resync.c, mbfb_hear_late_replies)      */
     int n_heard;
     uint32_t transactions;   /* atomic: attempts put on the wire                   */
     uint32_t busy_epoch[MBFB_BUSY_BUCKETS]; /* atomic: 100 ms period of the bucket */
@@ -521,12 +561,12 @@ int  mbfb_plan_parked(mbfb_plan_t *p, int64_t now);
 /** Publish refresh number p->seq + 1 (words: the items' words in order). */
 void mbfb_plan_publish(mbfb_plan_t *p, int result, uint32_t gen, uint32_t read_mask,
                        const uint16_t *words, int nwords);
-
-/* the worker (mbfb_worker.c) */
-void *mbfb_worker_main(void *arg);
 /** Every running plan of the bus ends its refresh now with `err` (the port could not be
  *  opened); none is due again before bus->reopen_us. */
 void mbfb_plans_no_port(mbfb_bus_t *bus, int64_t now, int err);
+
+/* the worker (mbfb_worker.c) */
+void *mbfb_worker_main(void *arg);
 
 /* waking the worker (mbfb_wake.c): an eventfd, so that the idle worker waits on the port
  * and on posts in one ppoll and uses no CPU until one of them comes */
@@ -558,11 +598,31 @@ int  mbfb_device_request(mbfb_bus_t *bus, mbfb_request_t *request);
 /** Wait for a silent line before an attempt to `slave`, hearing late replies meanwhile.
  *  0 or -MBFB_E_PORTLOST. */
 int  mbfb_wait_quiet(mbfb_bus_t *bus, int slave);
+
+/* a device's protocol state (mbfb_device.c) */
+/** The one writer of dev->state: the transition `ev` makes (t: when, for the hold of
+ *  BACKOFF and SHAPES_FULL), with the device's fails, next_probe_us and diag.offline. */
+void mbfb_dev_event(mbfb_bus_t *bus, mbfb_dev_t *dev, mbfb_dev_event_t ev, int64_t t);
+/** Is the device held back (BACKOFF, SHAPES_FULL): nothing before next_probe_us, then one
+ *  probe? */
+static inline int mbfb_dev_held(const mbfb_dev_t *dev)
+{
+    return dev->state == MBFB_DEV_BACKOFF || dev->state == MBFB_DEV_SHAPES_FULL;
+}
+/** May a request go to the device as it is (no late reply of it possible)? Always on
+ *  Modbus TCP, whose failed attempts reconnect. */
+static inline int mbfb_dev_in_step(const struct mbfb_bus *bus, const mbfb_dev_t *dev)
+{
+    return dev->state == MBFB_DEV_IN_STEP || !bus->be->needs_resync;
+}
+
+/* the line's use (mbfb_busy.c): busy_permille over the last second, in 100 ms buckets */
 /** Sum the line's busy time of the last second into bus->busy_permille; returns when the
  *  window holds no busy time any more (INT64_MAX: none now). */
 int64_t mbfb_busy_update(mbfb_bus_t *bus, int64_t now);
-/** The device answered (or was heard): out of back-off, its failures count from 0. */
-void mbfb_end_backoff(mbfb_dev_t *dev);
+/** Account `us` of line time in the bucket of `now` (an attempt: request, turnaround,
+ *  reply, the gap owed). */
+void mbfb_busy_add(mbfb_bus_t *bus, int64_t now, int64_t us);
 
 /* late replies and resync reads (mbfb_resync.c) */
 /** Modbus exception codes a request draws each time it is sent, as the device's map does
@@ -574,11 +634,12 @@ void mbfb_end_backoff(mbfb_dev_t *dev);
 int  mbfb_retire_heard(mbfb_bus_t *bus, const uint8_t *f, int len);
 /** Late replies among the bytes heard in the silence before a request (bus->heard). */
 void mbfb_hear_late_replies(mbfb_bus_t *bus);
-/** After a failed attempt (fc, addr, count, vals) sent at t: out of step (serial lines),
- *  its reply shape outstanding. */
+/** After a failed attempt (fc, addr, count, vals) sent at t: out of step (serial lines,
+ *  MBFB_EV_ATTEMPT_FAILED), its reply shape outstanding. */
 void mbfb_out_of_step(mbfb_bus_t *bus, mbfb_dev_t *dev, int fc, int addr, int count,
                       const uint16_t *vals, int64_t t);
-/** A resync read was answered: in step, nothing outstanding, no settle owed for it. */
+/** A resync read was answered: in step (MBFB_EV_RESYNCED), nothing outstanding, no settle
+ *  owed for it. */
 void mbfb_in_step(mbfb_bus_t *bus, mbfb_dev_t *dev);
 /** Remember a range that read well (most recent first). */
 void mbfb_remember_read(mbfb_dev_t *dev, int fc, int addr, int count);

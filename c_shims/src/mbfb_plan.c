@@ -251,7 +251,7 @@ int mbfb_plan_parked(mbfb_plan_t *p, int64_t now)
     uint32_t mid = __atomic_load_n(&p->mid, __ATOMIC_ACQUIRE);
     uint32_t cfg = __atomic_load_n(&p->cfg_seq, __ATOMIC_ACQUIRE);
     int period = __atomic_load_n(&p->period_ms, __ATOMIC_RELAXED);
-    int64_t every = period > 0 ? (int64_t)period * 1000 : 0; /* on demand: the scan's */
+    int64_t every = period > 0 ? MBFB_MS(period) : 0; /* on demand: the scan's */
     mbfb_plan_cfg_t c;
     uint16_t words[MBFB_PLAN_MAX_WORDS];
 
@@ -265,7 +265,7 @@ int mbfb_plan_parked(mbfb_plan_t *p, int64_t now)
             return 0;
         }
         /* scanned again (that take woke us): a slow task's interval, or a stop */
-        if (now - p->untaken_us <= (int64_t)MBFB_SCAN_MAX_MS * 1000)
+        if (now - p->untaken_us <= MBFB_MS(MBFB_SCAN_MAX_MS))
             p->scan_us = now - p->untaken_us;
         p->untaken_us = 0;
         return 0;
@@ -275,8 +275,8 @@ int mbfb_plan_parked(mbfb_plan_t *p, int64_t now)
     if (p->scan_us > every)
         every = p->scan_us;
     p->stale_us = MBFB_STALE_PERIODS * every;
-    if (p->stale_us < (int64_t)MBFB_STALE_MIN_MS * 1000)
-        p->stale_us = (int64_t)MBFB_STALE_MIN_MS * 1000;
+    if (p->stale_us < MBFB_MS(MBFB_STALE_MIN_MS))
+        p->stale_us = MBFB_MS(MBFB_STALE_MIN_MS);
     if (!(mid & MBFB_SNAP_FRESH) || now - p->untaken_us <= p->stale_us)
         return 0; /* everything published was taken, or not long ago */
     p->parked = 1;
@@ -327,10 +327,32 @@ static void publish(mbfb_plan_t *p, int result, uint32_t gen, uint32_t read_mask
         now = mbfb_now_us();
         if (p->untaken_us != 0) /* the scan interval: at least how long it was seen waiting */
             p->scan_us = p->seen_us > p->untaken_us &&
-                                 p->seen_us - p->untaken_us <= (int64_t)MBFB_SCAN_MAX_MS * 1000
+                                 p->seen_us - p->untaken_us <= MBFB_MS(MBFB_SCAN_MAX_MS)
                              ? p->seen_us - p->untaken_us
                              : 0;
         p->untaken_us = now;
         p->seen_us = 0;
+    }
+}
+
+/* Every running plan of the bus ends its refresh now with `err` (the port could not be
+ * opened: MBFB_E_NOPORT, MBFB_E_BAUD for a rate the driver cannot set, MBFB_E_DIRECTION
+ * for a direction mode it refuses): one failed snapshot each, in this one pass, and none
+ * is due again before bus->reopen_us, so the bus tries open() once per probe interval
+ * whatever the number of plans. */
+void mbfb_plans_no_port(mbfb_bus_t *bus, int64_t now, int err)
+{
+    int n = __atomic_load_n(&bus->n_plans, __ATOMIC_ACQUIRE);
+    uint16_t words[MBFB_PLAN_MAX_WORDS];
+
+    memset(words, 0, sizeof words);
+    for (int i = 0; i < n; i++) {
+        mbfb_plan_t *p = __atomic_load_n(&bus->plans[i], __ATOMIC_ACQUIRE);
+        mbfb_plan_cfg_t cfg;
+        if (p == NULL || !mbfb_plan_read_cfg(p, &cfg))
+            continue; /* not running */
+        p->last_start_us = now;
+        MBFB_DIAG_SET(mbfb_devs[p->dev], last_error, (int32_t)err);
+        mbfb_plan_publish(p, err, cfg.slow_gen, 0u, words, cfg.nwords);
     }
 }

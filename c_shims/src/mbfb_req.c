@@ -194,13 +194,12 @@ int mbfb_take(int req, uint16_t *values, int max)
     if (ST(w) == MBFB_SLOT_FAILED) {
         rc = -s->result;
     } else if (ST(w) == MBFB_SLOT_DONE) {
-        int words = mbfb_data_words(s->fc, s->nvals); /* FC01/02: nvals bits, packed */
+        int bits = mbfb_fc_is_bits(s->fc), n = s->nvals; /* FC01/02: n bits, packed */
+        int words = bits ? MBFB_BIT_WORDS(n) : n;
         words = values == NULL || max < 0 ? 0 : (words < max ? words : max);
         if (words > 0)
             memcpy(values, s->values, (size_t)words * sizeof values[0]);
-        rc = words; /* registers copied; bits copied: */
-        if (mbfb_fc_is_bits(s->fc))
-            rc = 16 * words < s->nvals ? 16 * words : s->nvals;
+        rc = !bits ? words : 16 * words < n ? 16 * words : n; /* registers, or bits copied */
     } else {
         return -MBFB_E_BADHANDLE; /* not finished (or already taken) */
     }
@@ -332,7 +331,7 @@ int mbfb_bus_diag(int dev, mbfb_bus_diag_t *out)
  * scanning the blocks that post here: what they queued is not sent (README "Lifetime"). */
 static int bus_unscanned(mbfb_bus_t *bus)
 {
-    int64_t now = mbfb_now_us(), bound = (int64_t)MBFB_STALE_MIN_MS * 1000;
+    int64_t now = mbfb_now_us(), bound = MBFB_MS(MBFB_STALE_MIN_MS);
     uint32_t scans = __atomic_load_n(&bus->scans, __ATOMIC_RELAXED);
     int n = __atomic_load_n(&bus->n_plans, __ATOMIC_ACQUIRE);
 

@@ -8,8 +8,9 @@
  * requests in order: nothing older can follow) and clears the outstanding set
  * (mbfb_in_step). A late reply heard in the silence before a request, or in a resync
  * read's wait, retires its shape (mbfb_retire_heard), and a read whose shape is free is
- * its own resync read: its answer is the request's. A device in back-off is probed with
- * the read of its newest outstanding shape (mbfb_pick_probe).
+ * its own resync read: its answer is the request's. A device held back is probed with
+ * the read of its newest outstanding shape (mbfb_pick_probe). The device's state changes
+ * in mbfb_device.c (mbfb_dev_event); the shapes are kept here.
  * Everything here is the worker's (dev->outstanding, dev->known are worker only).
  */
 #include <string.h>
@@ -66,7 +67,7 @@ int mbfb_retire_heard(mbfb_bus_t *bus, const uint8_t *f, int len)
         dev->n_outstanding--;
         dev->heard = 1;
         if (dev->fails > 0)
-            mbfb_end_backoff(dev);
+            mbfb_dev_event(bus, dev, MBFB_EV_ANSWERED, mbfb_now_us());
         return 1;
     }
     return 0;
@@ -77,7 +78,7 @@ static void expire_shapes(mbfb_dev_t *dev, int64_t now)
 {
     int k = 0;
     for (int i = 0; i < dev->n_outstanding; i++)
-        if (now - dev->outstanding[i].t_us < (int64_t)MBFB_LATE_MAX_MS * 1000)
+        if (now - dev->outstanding[i].t_us < MBFB_MS(MBFB_LATE_MAX_MS))
             dev->outstanding[k++] = dev->outstanding[i];
     dev->n_outstanding = k;
 }
@@ -120,7 +121,7 @@ void mbfb_out_of_step(mbfb_bus_t *bus, mbfb_dev_t *dev, int fc, int addr, int co
     mbfb_shape_t sh;
     if (!bus->be->needs_resync)
         return; /* TCP: the new connection is in step */
-    dev->in_step = 0;
+    mbfb_dev_event(bus, dev, MBFB_EV_ATTEMPT_FAILED, t);
     memset(&sh, 0, sizeof sh);
     sh.fc = fc;
     sh.t_us = t;
@@ -154,7 +155,7 @@ void mbfb_out_of_step(mbfb_bus_t *bus, mbfb_dev_t *dev, int fc, int addr, int co
  * slave need wait for a late reply of it: the settle it owed is void). */
 void mbfb_in_step(mbfb_bus_t *bus, mbfb_dev_t *dev)
 {
-    dev->in_step = 1;
+    mbfb_dev_event(bus, dev, MBFB_EV_RESYNCED, mbfb_now_us());
     dev->n_outstanding = 0;
     if (bus->settle_slave == dev->slave)
         bus->settle_us = 0;

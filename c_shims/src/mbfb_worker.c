@@ -15,28 +15,6 @@
 
 #include "mbfb_internal.h"
 
-/* Every running plan of the bus ends its refresh now with `err` (the port could not be
- * opened: MBFB_E_NOPORT, MBFB_E_BAUD for a rate the driver cannot set, MBFB_E_DIRECTION
- * for a direction mode it refuses): one failed snapshot each, in this one pass, and none
- * is due again before bus->reopen_us, so the bus tries open() once per probe interval
- * whatever the number of plans. */
-void mbfb_plans_no_port(mbfb_bus_t *bus, int64_t now, int err)
-{
-    int n = __atomic_load_n(&bus->n_plans, __ATOMIC_ACQUIRE);
-    uint16_t words[MBFB_PLAN_MAX_WORDS];
-
-    memset(words, 0, sizeof words);
-    for (int i = 0; i < n; i++) {
-        mbfb_plan_t *p = __atomic_load_n(&bus->plans[i], __ATOMIC_ACQUIRE);
-        mbfb_plan_cfg_t cfg;
-        if (p == NULL || !mbfb_plan_read_cfg(p, &cfg))
-            continue; /* not running */
-        p->last_start_us = now;
-        MBFB_DIAG_SET(mbfb_devs[p->dev], last_error, (int32_t)err);
-        mbfb_plan_publish(p, err, cfg.slow_gen, 0u, words, cfg.nwords);
-    }
-}
-
 /* ---- posted requests ---------------------------------------------------------------- */
 
 /* One entry of a chain (slot s, entry i): its write, confirmed as any idempotent write
@@ -135,10 +113,10 @@ static int64_t plan_due(mbfb_bus_t *bus, mbfb_plan_t *p)
     else if (period == MBFB_PERIOD_ON_DEMAND)
         return INT64_MAX; /* refreshed once when set, then on a trigger only */
     else
-        due = p->last_start_us + (int64_t)period * 1000;
+        due = p->last_start_us + MBFB_MS(period);
     if (p->failed && dev->heard && period != MBFB_PERIOD_ON_DEMAND)
         due = 0; /* its device was heard: it can answer again now */
-    if (dev->probe_us > 0 && dev->next_probe_us > due)
+    if (mbfb_dev_held(dev) && dev->next_probe_us > due)
         due = dev->next_probe_us;
     if (bus->fd < 0 && bus->reopen_us > due)
         due = bus->reopen_us;
@@ -224,7 +202,7 @@ static void publish_refresh(mbfb_plan_t *p, const mbfb_plan_cfg_t *cfg, int resu
     } else {
         if (slow) {
             p->slow.read_gen = cfg->slow_gen;
-            p->slow.next_us = start + (int64_t)cfg->slow_ms * 1000;
+            p->slow.next_us = start + MBFB_MS(cfg->slow_ms);
         }
         MBFB_DIAG_INC(dev, refreshes);
         if (dev->last_refresh_us != 0)
