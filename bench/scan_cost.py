@@ -7,8 +7,10 @@
 Not a test: it prints figures (st_src/README.md, "Scan cost"). For each variant (a commit
 exported with `git archive`, or the working tree: bench/wire_pace.py's Variant) and each
 build of the shims (--shims: O0 = CMAKE_BUILD_TYPE Debug, as OpenPLC compiles them with the
-program; O2 = RelWithDebInfo), for Counter_MTS9 (MT-S9, 115200 8N1), TempCtrl_MVD94 and
-FDC_Controller (19200 8N2), each in wire_pace's `device_program` (one block, task 20 ms)
+program; O2 = RelWithDebInfo), for Counter_MTS9 (MT-S9, 115200 8N1), TempCtrl_MVD94,
+FDC_Controller and MB_Poll (19200 8N2; MB_Poll reads coils, holding registers, discrete inputs
+and input registers of the simulator's generic device bench/poll_device.json, 5 words), each
+in wire_pace's `device_program` (one block, task 20 ms)
 with `Period := T#30s` ("steady": no new snapshot after the first refresh), `T#1s`
 ("published": a snapshot every second, so `Age` and `SettingsAge` are computed in the scans
 between, the steady scan of a block whose data are published) and `T#0s` ("pick-up"): the program is built as OpenPLC builds it (iec2c -f -l -p -r -R -a, g++ -O0,
@@ -30,6 +32,11 @@ reports, per scan:
 * pick-up: the share of scans in which the program saw `Valid AND Age = T#0s` (it calls
   `wp_pub`): a new snapshot taken, judged and published in that scan.
 
+With --syscalls, each block's steady program (shims at the first --shims) runs once more for
+as long under `strace -f` (not callgrind): the system calls of the scan thread after the
+first --skip-scans scans, the host's own clock_nanosleep (one per scan) left out; a block
+that waits on nothing and wakes nothing in a steady scan makes none.
+
 Everything listens on ptys only; every process is stopped by pid; the temp dir is removed.
 Needs what wire_pace.py needs (cmake, ninja, gcc/g++, OpenPLC v3's iec2c, the venv) and
 valgrind (Debian package).
@@ -50,10 +57,18 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import wire_pace as wp  # noqa: E402
 
 # (block, simulator device, baud, format)
+POLL_DEVICE = os.path.join(os.path.dirname(os.path.abspath(__file__)), "poll_device.json")
 BLOCKS = (("Counter_MTS9", "mts9:1", 115200, "8N1"),
           ("TempCtrl_MVD94", "mvd94:1", 19200, "8N2"),
-          ("FDC_Controller", "fdc100:1", 19200, "8N2"))
+          ("FDC_Controller", "fdc100:1", 19200, "8N2"),
+          ("MB_Poll", f"generic:1:file={POLL_DEVICE}", 19200, "8N2"))
+# a block's inputs besides Enable, Port, SlaveId, Line, Period: MB_Poll's four ranges, mixed
+INPUTS = {"MB_Poll": ", Fc1 := 1, Addr1 := 0, Count1 := 20, Fc2 := 3, Addr2 := 0, Count2 := 10, "
+                     "Fc3 := 2, Addr3 := 10, Count3 := 40, Fc4 := 4, Addr4 := 100, Count4 := 5"}
 MODES = (("steady", "T#30s"), ("published", "T#1s"), ("pick-up", "T#0s"))
+# a block's own period for a mode: MB_Poll's T#0s refreshes on Trigger only, T#1ms as often as
+# the line allows
+PERIODS = {("MB_Poll", "T#0s"): "T#1ms"}
 SHIMS = {"O0": "Debug", "O2": "RelWithDebInfo"}
 
 
@@ -194,6 +209,50 @@ def measure(v: wp.Variant, exe: str, block: str, dev: str, baud: int, fmt: str, 
             "per_fn": {k: (c / n, ir / c) for k, (c, ir) in sorted(per_fn.items())}}
 
 
+SYSCALL = re.compile(r"^(\d+)\s+(\d+):(\d+):(\d+\.\d+)\s+(\w+)\(")
+
+
+def scan_syscalls(exe: str, dev: str, baud: int, fmt: str, port: str, tmp: str, args) -> tuple:
+    """The system calls of the scan thread (the process's first thread: wp_host's loop) in the
+    steady scans, under `strace -f` (not callgrind) for as long as a measured run: those
+    before each of the host's clock_nanosleep (its wait for the next tick, left out) after the
+    first --skip-scans, so not the host's report and exit after its last scan:
+    (scans, {name: calls})."""
+    seconds = (args.skip_scans + args.scans) * args.task_ms / 1000.0 + 1.0
+    skip_s = args.skip_scans * args.task_ms / 1000.0 + 1.0
+    out = os.path.join(tmp, "strace.txt")
+    sim = wp.Simulator([dev], baud=baud, fmt=fmt, pace=args.pace, seed=1, link=port,
+                       extra=["--ptyline", "none"] if args.pace else [])
+    sim.start()
+    try:
+        subprocess.run(["strace", "-f", "-qq", "-tt", "-o", out, exe, "0", f"{seconds:g}",
+                        str(args.task_ms)], stdout=subprocess.DEVNULL, check=True,
+                       timeout=seconds * 10 + 120)
+    finally:
+        sim.stop()
+    calls: dict[str, int] = {}
+    main_pid, t0, sleeps, pending = None, None, 0, []
+    with open(out, encoding="utf-8", errors="replace") as fh:
+        for line in fh:
+            m = SYSCALL.match(line)
+            if not m:
+                continue                # "<... resumed>", signals, exits
+            t = int(m.group(2)) * 3600 + int(m.group(3)) * 60 + float(m.group(4))
+            if main_pid is None:
+                main_pid, t0 = m.group(1), t
+            if m.group(1) != main_pid or t - t0 < skip_s:
+                continue
+            if m.group(5) == "clock_nanosleep":
+                sleeps += 1             # one per scan: the host's, not the program's
+                for name in pending:    # made in a scan: counted
+                    calls[name] = calls.get(name, 0) + 1
+                pending = []
+            else:
+                pending.append(m.group(5))
+    os.remove(out)                      # pending: the host's report and exit after its last scan
+    return sleeps, calls
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--variant", action="append", metavar="NAME=REF",
@@ -205,6 +264,9 @@ def main() -> int:
     ap.add_argument("--pace", action="store_true",
                     help="the simulator paces its replies at the baud rate (default: answers at once)")
     ap.add_argument("--blocks", default=",".join(b for b, *_ in BLOCKS))
+    ap.add_argument("--syscalls", action="store_true",
+                    help="also count the scan thread's system calls in steady scans (strace -f, "
+                         "the -O0 shims, Period T#30s)")
     args = ap.parse_args()
     variants = [v.split("=", 1) for v in (args.variant or ["now=worktree"])]
     if any(len(v) != 2 or not v[0].isidentifier() for v in variants):
@@ -219,7 +281,7 @@ def main() -> int:
         raise SystemExit("valgrind not found (Debian package valgrind)")
     tmp = tempfile.mkdtemp(prefix="scancost-")
     started = time.monotonic()
-    res = {}
+    res, sys_res = {}, {}
     try:
         for name, ref in variants:
             for o in opts:
@@ -228,11 +290,23 @@ def main() -> int:
                     for mode, period in MODES:
                         key = f"{block}-{mode}"
                         port = os.path.join(tmp, f"{v.name}-{key}")
-                        exe = v.compile(key, wp.device_program(block, port, baud, fmt, period))
+                        exe = v.compile(key, wp.device_program(block, port, baud, fmt,
+                                                               PERIODS.get((block, period), period),
+                                                               INPUTS.get(block, "")))
                         wp.log(f"[{v.name}] {block} {mode}: {args.skip_scans} + {args.scans} scans under callgrind ...")
                         res[(name, o, block, mode)] = measure(v, exe, block, dev, baud, fmt, port, tmp, args)
+                        if args.syscalls and mode == "steady" and o == opts[0]:
+                            wp.log(f"[{v.name}] {block} steady: system calls under strace ...")
+                            sys_res[(name, block)] = scan_syscalls(exe, dev, baud, fmt, port, tmp, args)
                 shutil.rmtree(v.dir)
         report(res, variants, opts, blocks, args)
+        if sys_res:
+            print("\n| variant | block | steady scans (strace) | system calls of the scan thread besides "
+                  "the host's clock_nanosleep |")
+            print("|---|---|---|---|")
+            for (n, block), (scans, calls) in sys_res.items():
+                listed = ", ".join(f"{k} {c}" for k, c in sorted(calls.items())) or "none"
+                print(f"| {n} | {block} | {scans} | {listed} |")
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     wp.log(f"total {time.monotonic() - started:.0f} s")

@@ -112,6 +112,14 @@ extern "C" {
 #define MBFB_E_NOT_ENABLED   208 /* command on a device block whose Enable is FALSE     */
 #define MBFB_E_NOT_HELD      209 /* a settings download's read-back shows another word
                                      than the one written (a chain entry: mbfb_post_chain) */
+#define MBFB_E_BAD_PLAN      210 /* a block's ranges refused by mbfb_plan_set (MBFB_E_INVAL):
+                                     a function not 1/2/3/4, a Count 0 or negative, above
+                                     125 registers or 2000 bits, address + count above
+                                     65536, or the ranges together above 125 words (bits
+                                     packed 16 to a word); MB_Poll                      */
+#define MBFB_E_OVERLAP       211 /* two ranges of the same function overlap on the device
+                                     (MB_Poll)                                          */
+#define MBFB_E_NO_RANGE      212 /* no range to read: every Fc is 0 (MB_Poll)             */
 
 /* ---- RS-485 direction control (README "Direction control") ------------------
  * A half-duplex transceiver (MAX485 and the like) must drive the line while the master

@@ -14,6 +14,7 @@ import time
 from .bus import Bus, LineSettings
 from .control import Control
 from .fdc100 import Fdc100
+from .generic import Generic
 from .mts9 import MtS9
 from .mvd94 import MvD94, Vd
 from .regmap import mbmap
@@ -23,7 +24,8 @@ from .transport import SerialLine
 
 import settings  # noqa: E402  (maps/settings.py, on the path through regmap)
 
-KINDS = {"mvd94": MvD94, "vd": Vd, "mts9": MtS9, "fdc100": Fdc100}
+KINDS = {"mvd94": MvD94, "vd": Vd, "mts9": MtS9, "fdc100": Fdc100, "generic": Generic}
+FRAMED = ("mts9", "generic")    # kinds that take framing=
 TICK_S = 0.05       # real seconds between steps of the dynamics
 
 
@@ -113,9 +115,9 @@ def build(args):
     if len(set(addrs)) != len(addrs):
         raise ValueError("two devices share an address")
     # Devices of different framings share a line (each hears every byte and answers frames of
-    # its own framing). An MT-S9 given no framing= takes the one framing the others were
-    # given, else RTU.
-    framings = {v for k, _, items in specs if k == "mts9" for n, v in items if n.lower() == "framing"}
+    # its own framing). An MT-S9 or generic device given no framing= takes the one framing the
+    # others were given, else RTU.
+    framings = {v for k, _, items in specs if k in FRAMED for n, v in items if n.lower() == "framing"}
     bad = framings - {"rtu", "nocrc", "ascii"}
     if bad:
         raise ValueError(f"framing must be rtu, nocrc or ascii, not {sorted(bad)[0]!r}")
@@ -127,6 +129,7 @@ def build(args):
     for kind, addr, items in specs:
         dev = KINDS[kind](addr, line, random.Random(f"{args.seed}:dev:{addr}"))
         items = [it for it in items if not dev.option(*it)]
+        dev.finish()
         items.sort(key=lambda it: init_rank(kind, it[0]))
         for name, value in items:
             try:
@@ -164,6 +167,8 @@ def init_rank(kind: str, name: str) -> int:
     """Start-up options are set in the order the instrument needs them written (the settings
     description, maps/settings.py): what scales the others (input type, unit, decimal point),
     then the limits, then the rest."""
+    if kind not in mbmap.DEVICES and kind != "vd":
+        return settings.ORDER[""]
     try:
         part = mbmap.load(kind).reg(name).recipe
     except KeyError:

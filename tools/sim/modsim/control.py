@@ -116,7 +116,7 @@ class Control:
         dev = self._dev(req)
         reg = self._reg(dev, req)
         raw = dev.get_raw(reg)
-        out = {"raw": raw, "reg": reg.name, "words": dev.read_words(reg.addr, reg.words)}
+        out = {"raw": raw, "reg": reg.name, "words": dev.reg_words(reg)}
         if reg.scale != "raw" or reg.codes:
             out["eng"] = dev.to_eng(reg, raw)
         return out

@@ -124,6 +124,9 @@ class Device:
             for i, w in enumerate(r.to_words(r.default)):
                 self.words[r.addr + i] = w
 
+    def finish(self):
+        """Hook: called once the start-up options are taken; ValueError if one is missing."""
+
     def power_cycle(self):
         """Reset volatile state. Default: registers are non-volatile (EEPROM), nothing to do."""
 
@@ -171,6 +174,10 @@ class Device:
         if reg is None:
             raise KeyError(f"{self.KIND} has no register named {key!r}")
         return reg
+
+    def reg_words(self, reg: Reg) -> list[int]:
+        """The words of a register as a master would read them (control 'get')."""
+        return self.read_words(reg.addr, reg.words)
 
     def get_raw(self, reg: Reg) -> int:
         """Raw value as a master would read it (signed registers come back signed)."""
