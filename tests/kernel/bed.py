@@ -262,7 +262,11 @@ class Bed:
         for lib in shared_libs(program, self.guest.triple):
             c.file(lib, open(os.path.realpath(lib), "rb").read())
         for src, dest in files:
-            c.file(dest, open(src, "rb").read())
+            data = open(src, "rb").read()
+            c.file(dest, data)
+            if data[:4] == b"\x7fELF":  # another program: its libraries too
+                for lib in shared_libs(src, self.guest.triple):
+                    c.file(lib, open(os.path.realpath(lib), "rb").read())
         c.file("bin/test-program", open(program, "rb").read())
         conf = {"modules": " ".join(modules), "wait": " ".join(wait),
                 "args": " ".join(args)}
@@ -278,7 +282,11 @@ class Bed:
 
     # ---- one boot ----
     def boot(self, program, args=(), modules=(), setup=(), ports=(), files=(),
-             trace_events=("serial_*", "usb_serial_*"), memory_mb=256) -> Run:
+             trace_events=("serial_*", "usb_serial_*"), memory_mb=256, sim_sets=None) -> Run:
+        """One boot. sim_sets: {NAME: simulator arguments}: the program may ask for a pty
+        port's simulator to be restarted with one of them ({"restart": I, "set": NAME} on the
+        control line), e.g. before each fb test program."""
+        self.sim_sets = dict(sim_sets or {})
         vmlinuz, moddir = self.kernel()
         work = tempfile.mkdtemp(prefix="kbed.")
         procs = []
@@ -324,6 +332,7 @@ class Bed:
     def _boot(self, work, procs, vmlinuz, moddir, program, args, modules, setup, ports, files,
               trace_events, memory_mb):
         t_start = time.monotonic()
+        self.live = {}  # pty port -> (its simulator, where it serves, the port)
         kinds = [p.kind for p in ports]
         wait = []
         n8250 = nftdi = 0
@@ -411,10 +420,12 @@ class Bed:
         for i, p in enumerate(ports):
             if p.mode == "pty":
                 ctls[i], _ = self._sim(procs, work, i, p, ["--serial", ptys[f"p{i}"]])
+                self.live[i] = (procs[-1], ["--serial", ptys[f"p{i}"]], p)
         ctl_fd = os.open(ptys["ctl"], os.O_RDWR | os.O_NOCTTY)
         import tty
         tty.setraw(ctl_fd)
         marks = []
+        self.live_work, self.live_procs = work, procs
         relay = threading.Thread(target=self._relay, args=(ctl_fd, ctls, marks), daemon=True)
         relay.start()
         qemu.stdin.write("cont\n")
@@ -460,6 +471,25 @@ class Bed:
                             "-device", f"usb-serial,bus=xhci.0,chardev=p{i}"]
         return cmd
 
+    def _restart(self, i, name, ctls) -> dict:
+        """Simulator i (a pty port's) stopped by pid and started again with the set name."""
+        if i not in self.live or name not in self.sim_sets:
+            return {"ok": False, "error": "no such pty port or simulator set"}
+        proc, where, port = self.live[i]
+        proc.terminate()
+        try:
+            proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+        new = Port(port.kind, self.sim_sets[name], port.mode)
+        try:
+            ctls[i], _ = self._sim(self.live_procs, self.live_work, i, new, where)
+        except RuntimeError as e:
+            return {"ok": False, "error": str(e)}
+        self.live[i] = (self.live_procs[-1], where, new)
+        return {"ok": True}
+
     def _relay(self, fd, ctls, marks):
         buf = b""
         while True:
@@ -481,6 +511,8 @@ class Bed:
                     if "mark" in req:
                         marks.append((now, req["mark"]))
                         reply = {"ok": True}
+                    elif "restart" in req:
+                        reply = self._restart(req["restart"], req.get("set"), ctls)
                     elif "sim" in req:
                         i = req.pop("sim")
                         reply = sim_request(ctls[i], req) if 0 <= i < len(ctls) and ctls[i] \

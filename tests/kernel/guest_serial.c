@@ -13,6 +13,9 @@
  *     rts:PORT:SIM:BAUD:BEFORE:AFTER:N   Direction RTS, N reads between marks
  *     rs485:PORT:SIM:BAUD:BEFORE:AFTER:N Direction KERNEL, N reads between marks, and the
  *                          driver's RS-485 settings (TIOCGRS485) while the shims hold the port
+ *     fb:NAME:SIM:PORT:BAUD  the fb test program /bin/NAME (tests/fb, cross-built) against
+ *                          simulator SIM restarted with NAME's devices (the bed's set NAME):
+ *                          its port, the simulator's control through the control line
  *     latency:PORT:SIM     the low-latency flag and ftdi_sio's latency_timer once open
  *     bench:PORT:SIM:N     N one-register reads, the elapsed time (bench/kernel_wire.py)
  *     write:PATH:VALUE     write VALUE to a sysfs file (e.g. a UART's rx_trig_bytes)
@@ -26,6 +29,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/ioctl.h>
+#include <sys/wait.h>
 #include <termios.h>
 #include <time.h>
 #include <unistd.h>
@@ -246,6 +250,31 @@ static void rs485(const char *port, int baud, int before, int after, int n)
     mbfb_shutdown();
 }
 
+/* An fb test program (tests/fb/fbtest.h's hooks): the simulator restarted with its devices,
+ * the program run to its end with its port and the control line, its exit status. */
+static void fb_program(const char *name, int sim, const char *port, const char *baud)
+{
+    char req[256], reply[256], path[128];
+    const char *ctl = getenv("MBFB_BED_CTL");
+    snprintf(req, sizeof req, "{\"restart\": %d, \"set\": \"%s\"}", sim, name);
+    int ok = control(req, reply, sizeof reply) == 0 && strstr(reply, "\"ok\": true") != NULL;
+    snprintf(path, sizeof path, "/bin/%s", name);
+    int64_t t0 = t_now_us();
+    pid_t pid = ok ? fork() : -1;
+    if (pid == 0) {
+        setenv("MBFB_TEST_PORT", port, 1);
+        setenv("MBFB_SIM_CONTROL", ctl != NULL && *ctl ? ctl : "/dev/ttyS2", 1);
+        setenv("MBFB_TEST_BAUD", baud, 1);
+        execl(path, path, (char *)NULL);
+        _exit(127);
+    }
+    int status = 0, rc = -1;
+    if (pid > 0 && waitpid(pid, &status, 0) == pid && WIFEXITED(status))
+        rc = WEXITSTATUS(status);
+    printf("RESULT fb %s program=%s restarted=%d rc=%d ms=%lld\n", port, name, ok, rc,
+           (long long)((t_now_us() - t0) / 1000));
+}
+
 /* ftdi_sio's latency timer in ms (sysfs), -1 where the port has none. */
 static int latency_timer(const char *port)
 {
@@ -324,6 +353,8 @@ int main(int argc, char **argv)
             rts(port, atoi(a[0]), atoi(a[1]), atoi(a[2]), atoi(a[3]));
         else if (strcmp(what, "rs485") == 0 && a[3])
             rs485(port, atoi(a[0]), atoi(a[1]), atoi(a[2]), atoi(a[3]));
+        else if (strcmp(what, "fb") == 0 && a[1])
+            fb_program(port, sim, a[0], a[1]);
         else if (strcmp(what, "latency") == 0)
             latency(port);
         else if (strcmp(what, "bench") == 0 && a[0])

@@ -10,9 +10,11 @@ point written and read back, a device pulled and back), the bauds as the PL011 p
 'RTS' released within one character after the frame; then Direction 'KERNEL', which this
 driver accepts: RTS switched by the driver around every frame (UARTCR writes in QEMU's trace),
 DirBeforeUs / DirAfterUs as its delays (whole ms). The KERNEL checks fail when the shims do not
-put the port in RS-485 mode: then nothing switches RTS.
-With armhf: the 32-bit guest (Debian's armmp kernel, qemu-system-arm's virt, the program
-cross-built for armhf): the device traffic only (the shims' us arithmetic and time_t on 32 bits).
+put the port in RS-485 mode: then nothing switches RTS. Last, the fb test program of each
+device block (tests/fb t_mvd94, t_vd, t_fdc, t_mts9: matiec's code, the blocks, the shims)
+runs scan by scan against the simulator restarted with its devices.
+With armhf: the same in the 32-bit guest (Debian's armmp kernel, qemu-system-arm's virt, the
+program cross-built for armhf: the shims' us arithmetic and structures on 32 bits).
 Exit 0 when every check holds, 1 on a failed check, 77 (skipped) without QEMU, the kernel or
 the cross-built program.
 """
@@ -22,12 +24,18 @@ import sys
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 from bed import Bed, Port, Skip, skip_or_fail  # noqa: E402
 import test_serial as ts  # noqa: E402
+sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "fb"))
+from run_fb_test import sim_spec  # noqa: E402  (tests/fb: a program's @SIM header)
 from test_serial import check, results, until_next_mark, window, char_us  # noqa: E402
 
 AMA = "/dev/ttyAMA0"
 # 3000000: above the PL011's clock / 16 (QEMU's virt: 24 MHz): the driver falls back to the
 # rate in force, which the shims must refuse naming it
 BAUDS = [9600, 14400, 19200, 28800, 38400, 57600, 76800, 115200, 230400, 921600, 3000000]
+# the fb test program of each device block (tests/fb/t_NAME.st), cross-built with the guest's
+# program (tests/cross), run scan by scan against the simulator with its @SIM devices
+FB = ["mvd94", "vd", "fdc", "mts9"]
+FB_DIR = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "fb")
 DR, FR, LCR_H, CR = 0x000, 0x018, 0x02C, 0x030
 CR_RTS = 0x800      # UARTCR bit 11: 1 drives nUARTRTS low (RTS asserted)
 LCR_H_STP2 = 0x08
@@ -70,6 +78,33 @@ def rts_pulses(events, sending_level):
     return pulses
 
 
+def rts_checks(run, baud, before, after, n):
+    # Direction RTS (the worker switches RTS with TIOCMBIS/TIOCMBIC: UARTCR's RTS bit set
+    # while sending): released within one character + DirAfterUs of the frame's last bit
+    ch = char_us(baud)
+    wire = 8 * ch
+    r = results(run.output, "rts")
+    check(len(r) == 1 and r[0]["open"] == 0 and r[0]["good"] == n, f"{AMA} RTS: every read good ({r})")
+    edges = rts_pulses(window(run, f"rts {AMA}", f"rts-end {AMA}"), True)
+    check(len(edges) == n, f"{AMA} RTS: {len(edges)} RTS pulses for {n} requests")
+    lead, late = [], []
+    for on, frame, off in edges:
+        if frame:
+            lead.append((frame[0] - on) * 1e6)
+            late.append((off - (frame[0] + wire / 1e6)) * 1e6)
+    check(len(lead) == len(edges), f"{AMA} RTS: a data byte in every pulse")
+    if late:
+        print(f"      {AMA} RTS: before the first byte {min(lead):.0f}..{max(lead):.0f} us "
+              f"(DirBeforeUs {before}); released {min(late):.0f}..{max(late):.0f} us after the "
+              f"frame's last bit (one character {ch:.0f} us + DirAfterUs {after})")
+        check(min(lead) >= before, f"{AMA} RTS asserted at least DirBeforeUs before the first byte")
+        check(min(late) >= 0, f"{AMA} RTS never released before the frame's last bit")
+        median = sorted(late)[len(late) // 2]
+        check(median <= ch + after + ts.TCG_SLACK_US,
+              f"{AMA} RTS released within one character + DirAfterUs of the last bit, median "
+              f"{median:.0f} us (+{ts.TCG_SLACK_US} us for the guest's timers under TCG)")
+
+
 def main():
     build, program = sys.argv[1:3]
     arch = sys.argv[3] if len(sys.argv) > 3 else "arm64"
@@ -87,9 +122,25 @@ def main():
              f"kernel:{AMA}:0", f"rts:{AMA}:0:{baud}:{before}:{after}:{n}",
              f"rs485:{AMA}:0:{baud}:{kbefore}:{kafter}:{n}"]
     if arch != "arm64":
-        steps = steps[:1]
+        # not on the armhf guest: there the worker's sleeps overran by up to 25 ms (RTS
+        # released 2..27 ms after the frame, median 15.7 ms, in the one run made; the same
+        # shims on the aarch64 guest: 1.3..2.0 ms), a cause not yet found (guest timers
+        # under TCG?): 'RTS' edges are checked on the aarch64 guest and the 8250
+        steps.remove(f"rts:{AMA}:0:{baud}:{before}:{after}:{n}")
+    sets, files = {}, []
+    for name in FB:
+        spec = sim_spec(os.path.join(FB_DIR, f"t_{name}.st"))
+        sets[f"fb_{name}"] = (f"--baud {spec['baud']} --format {spec['format']} --time-scale "
+                              f"{spec['time-scale']} " +
+                              " ".join(f"--device {d}" for d in spec["devices"]))
+        files.append((os.path.join(os.path.dirname(program), f"fb_{name}"), f"/bin/fb_{name}"))
+        steps.append(f"fb:fb_{name}:0:{AMA}:{spec['baud']}")
+    missing = [src for src, _ in files if not os.path.exists(src)]
+    if missing:
+        skip_or_fail(f"{missing} not built (tests/cross: cross_{arch})")
     try:
-        run = bed.boot(program, args=steps, ports=[Port("pl011", ts.DEVICES)])
+        run = bed.boot(program, args=steps, ports=[Port("pl011", ts.DEVICES)], files=files,
+                       sim_sets=sets)
     except Skip as e:
         skip_or_fail(str(e))
     print(f"boot and run: {run.seconds:.1f} s, program exit {run.rc}")
@@ -110,8 +161,6 @@ def main():
     check(len(pulled) == 1 and pulled[0]["pulled"] in (1, 4) and pulled[0]["back"] == 0,
           f"{AMA} a device pulled fails its read and reads again when back ({pulled})")
 
-    if arch != "arm64":
-        finish()
     # bauds: what the PL011 was programmed with is what was asked (1 %), or ErrorID 14 naming
     # the rate the driver fell back to
     for d in results(run.output, "bauds"):
@@ -140,30 +189,8 @@ def main():
     check(len(k) == 1 and k[0]["rc"] == 0 and k[0]["sim_heard"] > 0,
           f"{AMA} Direction KERNEL: accepted, the read answered ({k})")
 
-    # Direction RTS (the worker switches RTS with TIOCMBIS/TIOCMBIC: UARTCR's RTS bit set
-    # while sending): released within one character + DirAfterUs of the frame's last bit
-    ch = char_us(baud)
-    wire = 8 * ch
-    r = results(run.output, "rts")
-    check(len(r) == 1 and r[0]["open"] == 0 and r[0]["good"] == n, f"{AMA} RTS: every read good ({r})")
-    edges = rts_pulses(window(run, f"rts {AMA}", f"rts-end {AMA}"), True)
-    check(len(edges) == n, f"{AMA} RTS: {len(edges)} RTS pulses for {n} requests")
-    lead, late = [], []
-    for on, frame, off in edges:
-        if frame:
-            lead.append((frame[0] - on) * 1e6)
-            late.append((off - (frame[0] + wire / 1e6)) * 1e6)
-    check(len(lead) == len(edges), f"{AMA} RTS: a data byte in every pulse")
-    if late:
-        print(f"      {AMA} RTS: before the first byte {min(lead):.0f}..{max(lead):.0f} us "
-              f"(DirBeforeUs {before}); released {min(late):.0f}..{max(late):.0f} us after the "
-              f"frame's last bit (one character {ch:.0f} us + DirAfterUs {after})")
-        check(min(lead) >= before, f"{AMA} RTS asserted at least DirBeforeUs before the first byte")
-        check(min(late) >= 0, f"{AMA} RTS never released before the frame's last bit")
-        median = sorted(late)[len(late) // 2]
-        check(median <= ch + after + ts.TCG_SLACK_US,
-              f"{AMA} RTS released within one character + DirAfterUs of the last bit, median "
-              f"{median:.0f} us (+{ts.TCG_SLACK_US} us for the guest's timers under TCG)")
+    if arch == "arm64":
+        rts_checks(run, baud, before, after, n)
 
     # Direction KERNEL for real: the driver switches RTS around every frame. The shims ask for
     # RTS_ON_SEND (DirActiveLow FALSE): amba-pl011 then clears UARTCR.RTS while sending (the
@@ -203,6 +230,12 @@ def main():
               f"first byte")
         check(min(late) >= kafter, f"{AMA} KERNEL: the driver waited DirAfterUs after the last "
               f"byte")
+    # the fb program of each device block, scan by scan, on this architecture
+    fb = {d["program"]: d for d in results(run.output, "fb")}
+    for name in FB:
+        d = fb.get(f"fb_{name}")
+        check(d is not None and d["restarted"] == 1 and d["rc"] == 0,
+              f"{AMA} fb_{name} (tests/fb/t_{name}.st) passed in the {arch} guest ({d})")
     finish()
 
 
