@@ -428,6 +428,13 @@ class Bed:
         self.live_work, self.live_procs = work, procs
         relay = threading.Thread(target=self._relay, args=(ctl_fd, ctls, marks), daemon=True)
         relay.start()
+        if arm:
+            # QEMU's PL011 does not pass the guest's line settings to its chardev (its 16550
+            # does), and QEMU opens a tty chardev at 115200 8N1: a paced line then gets the
+            # line's own settings, as the guest programs them
+            for i, p in enumerate(ports):
+                if p.mode == "paced":
+                    line_termios(os.path.realpath(os.path.join(work, f"line{i}")), p.sim_args)
         qemu.stdin.write("cont\n")
         qemu.stdin.flush()
         threading.Thread(target=lambda: drain(out_fd), daemon=True).start()
@@ -523,6 +530,25 @@ class Bed:
                     os.write(fd, (json.dumps(reply) + "\n").encode())
                 except OSError:
                     return
+
+
+def line_termios(path, sim_args):
+    """Set a tty's baud and character format (raw) from the simulator's --baud / --format."""
+    import termios
+    args = sim_args.split()
+    baud = int(args[args.index("--baud") + 1]) if "--baud" in args else 9600
+    fmt = args[args.index("--format") + 1] if "--format" in args else "8N1"
+    fd = os.open(path, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+    try:
+        iflag, oflag, cflag, lflag, _, _, cc = termios.tcgetattr(fd)
+        speed = getattr(termios, f"B{baud}")
+        cflag &= ~(termios.CSIZE | termios.PARENB | termios.PARODD | termios.CSTOPB)
+        cflag |= termios.CS8 | termios.CLOCAL | termios.CREAD
+        cflag |= {"N": 0, "E": termios.PARENB, "O": termios.PARENB | termios.PARODD}[fmt[1]]
+        cflag |= termios.CSTOPB if fmt[2] == "2" else 0
+        termios.tcsetattr(fd, termios.TCSANOW, [0, 0, cflag, 0, speed, speed, cc])
+    finally:
+        os.close(fd)
 
 
 def drain(fd):
