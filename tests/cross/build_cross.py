@@ -135,8 +135,8 @@ def main():
           f"{time.monotonic() - t0:.0f} s")
     with open(log) as f:
         warnings = [ln for ln in f if "warning:" in ln]
-    print(f"{a.arch}: {len(warnings)} warning lines (matiec's output is compiled with -w, "
-          f"ours with -Werror)")
+    print(f"{a.arch}: {len(warnings)} warning lines (generated code: matiec's with -w, STruC++'s "
+          f"with -Wall; ours with -Werror)")
     for w in warnings[:10]:
         print("   " + w.rstrip())
 
