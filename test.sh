@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Runs every test: ./test.sh            (all suites)
 #                  ./test.sh -L shims   (one label: maps, shims, sim, fb, strucpp, commission,
-#                                        e2e, editor, soak, kernel)
+#                                        e2e, editor, soak, kernel, cross)
 #                  ./test.sh -R crc     (tests whose name matches)
 # Extra arguments go to ctest. Configures build/ first and prints the configure summary (which
 # compiler toolchain, which libmodbus); after the run, each skipped test with its reason.

@@ -2,7 +2,10 @@
 (FC03, 9600 8N2, an MV-D94 on a line paced by tools/sim/ptyline) by the same shims program
 (tests/kernel/guest_serial.c, step bench) through
   - the 8250 (QEMU's 16550, /dev/ttyS1) and ftdi_sio (QEMU's FT232 behind xHCI, /dev/ttyUSB0)
-    in the kernel test bed's guest (tests/kernel/bed.py, TCG), and
+    in the kernel test bed's guest (tests/kernel/bed.py, TCG),
+  - amba-pl011, the Raspberry Pi's UART driver (QEMU's PL011, /dev/ttyAMA0) in the bed's
+    aarch64 guest (QEMU's virt machine), the program cross-built by tests/cross (cross_arm64:
+    BUILD/cross/arm64-programs), a second boot, and
   - a pty on the host (the simulator's paced line served directly), just before the boot
     (at the same time, QEMU's TCG and the host program share the 2 cores and the host
     program's reads time out).
@@ -63,6 +66,18 @@ def main():
     program = os.path.join(build, "tests/kernel/kernel_guest_serial")
     host = []
     host_pty(build, program, a.n, host)
+    pl011, arm_prog = [], os.path.join(build, "cross", "arm64-programs", "kernel_guest_serial")
+    try:
+        if not os.path.exists(arm_prog):
+            raise Skip(f"{arm_prog} not built (ctest -R cross_arm64)")
+        arm = Bed(build, "arm64").boot(arm_prog, args=[f"bench:/dev/ttyAMA0:0:{a.n}"],
+                                       ports=[Port("pl011", LINE, "paced")])
+        pl011 = [ln for ln in arm.output.splitlines() if ln.startswith("RESULT bench")]
+        print(f"(aarch64 guest boot and run {arm.seconds:.0f} s, program exit {arm.rc})")
+        if not pl011:
+            print("PL011: no result; the program said:\n" + arm.output[-600:])
+    except Skip as e:
+        print(f"PL011 skipped: {e}")
     try:
         run = Bed(build).boot(program, args=[f"bench:/dev/ttyS1:0:{a.n}",
                                              f"bench:/dev/ttyUSB0:1:{a.n}",
@@ -80,6 +95,8 @@ def main():
     if len(guest) == 3:
         rows += [("8250 (guest)", guest[0]), ("ftdi_sio (guest)", guest[1]),
                  ("8250, rx_trig_bytes 1 (guest)", guest[2])]
+    if pl011:
+        rows.append(("amba-pl011 (aarch64 guest)", pl011[0]))
     for name, line in rows:
         good, n, ms, w = share(line)
         print(f"| {name} | {good}/{n} | {ms:.1f} | {w:.2f} |")

@@ -134,7 +134,10 @@ int mbfb_serial_set_baud(mbfb_bus_t *bus, int set)
         got = rate_in_force(bus->fd, got, driver, devpath);
     else
         strcpy(driver, "serial");
-    if (got > 0 && labs(got - baud) * 1000 <= baud * MBFB_BAUD_TOLERANCE_PERMILLE &&
+    /* in 64 bits: |got - baud| * 1000 passes 2^31 at 2.1 Mbaud off, and long has 32 bits on
+     * armhf (3000000 asked, 9600 in force passed as 0 % off there: tests/kernel pl011) */
+    if (got > 0 &&
+        llabs((long long)got - baud) * 1000 <= (long long)baud * MBFB_BAUD_TOLERANCE_PERMILLE &&
         (!set || t.c_ispeed == t.c_ospeed))
         return 0;
     if (!bus->baud_said) {

@@ -15,6 +15,10 @@ the guest's memory, and prints it on the console at the end (the console UART st
 while the program runs: its trace events would mix with the ports'). ttyS0 is the console,
 ttyS1 the first 8250 port (null when none), ttyS2 the control line, ttyS3 a second 8250 port;
 the FTDI ports are ttyUSB0, ttyUSB1, ... (QEMU usb-serial behind an xHCI controller).
+Bed(build_dir, "arm64") (or "armhf"): an ARM guest of QEMU's virt machine, Debian's kernel and
+busybox-static of that architecture, the program cross-built (tests/cross) with its libraries
+from the multiarch folders; its one UART, the PL011 (Port("pl011", ...), /dev/ttyAMA0), is the
+port; the console and the control line are virtio consoles (hvc0, hvc1).
 
 The control line: the program writes one JSON object per line on /dev/ttyS2 and reads one line
 back: {"mark": NAME} (the bed notes the host time: the trace's clock) or {"sim": I, ...} (a
@@ -47,7 +51,37 @@ ROOT = os.path.dirname(os.path.dirname(HERE))
 SIM = os.path.join(ROOT, "tools", "sim", "mbsim.py")
 QEMU = os.environ.get("MBFB_QEMU", "qemu-system-x86_64")
 BUSYBOX = os.environ.get("MBFB_BUSYBOX", "/bin/busybox")
-BOOT_LIMIT_S = 150  # one boot, program included, is stopped after this
+BOOT_LIMIT_S = 150  # one boot of the PC guest, program included, is stopped after this
+
+
+@dataclasses.dataclass
+class Guest:
+    """One kind of guest: the PC (amd64, this machine's own userland) or an ARM board
+    (QEMU's virt machine; Debian's kernel and busybox-static for that architecture, the
+    program cross-built: tests/cross)."""
+    arch: str            # Debian architecture of the kernel and userland
+    qemu: str
+    machine: list        # QEMU's machine arguments
+    triple: str          # the program's shared libraries: /lib/<triple> (None: ldd)
+    qemu_package: str
+    console: str         # the kernel's console= (and where init prints)
+    ctl: str             # the control line in the guest
+    modules: tuple       # loaded first (the console's and the control line's driver)
+    limit_s: float = BOOT_LIMIT_S  # one boot, program included, is stopped after this
+
+
+GUESTS = {
+    "amd64": Guest("amd64", QEMU, ["-M", "pc"], None, "qemu-system-x86", "ttyS0",
+                   "/dev/ttyS2", ()),
+    # virt has one PL011 (the test port, /dev/ttyAMA0); the console and the control line are
+    # virtio consoles (hvc0, hvc1)
+    "arm64": Guest("arm64", "qemu-system-aarch64", ["-M", "virt", "-cpu", "cortex-a53"],
+                   "aarch64-linux-gnu", "qemu-system-arm", "hvc0", "/dev/hvc1",
+                   ("virtio_mmio", "virtio_console"), 300),
+    "armhf": Guest("armhf", "qemu-system-arm", ["-M", "virt", "-cpu", "cortex-a15"],
+                   "arm-linux-gnueabihf", "qemu-system-arm", "hvc0", "/dev/hvc1",
+                   ("virtio_mmio", "virtio_console"), 300),
+}
 
 
 class Skip(Exception):
@@ -56,7 +90,7 @@ class Skip(Exception):
 
 @dataclasses.dataclass
 class Port:
-    kind: str            # "8250" or "ftdi"
+    kind: str            # "8250" or "ftdi" (PC), "pl011" (ARM)
     sim_args: str        # the simulator's arguments (devices, --baud, --format ...)
     mode: str = "pty"    # "pty" or "paced" (see the module's doc)
 
@@ -122,8 +156,29 @@ class Cpio:
         return b"".join(self.parts)
 
 
-def shared_libs(program: str) -> list:
-    """The shared objects `ldd` says the program loads (with the dynamic loader)."""
+def shared_libs(program: str, triple: str = None) -> list:
+    """The shared objects `ldd` says the program loads (with the dynamic loader); for a
+    program of another architecture (triple), its interpreter and NEEDED entries, followed,
+    from Debian's multiarch folders (/lib/<triple>: libc6:<arch>, libmodbus5:<arch>)."""
+    if triple:
+        dirs = [f"/lib/{triple}", f"/usr/lib/{triple}"]
+        libs, todo = [], [program]
+        while todo:
+            elf = todo.pop()
+            out = subprocess.run([f"{triple}-readelf", "-d", "-l", elf], capture_output=True,
+                                 text=True).stdout
+            interp = re.findall(r"interpreter: (\S+?)\]", out)
+            for name in interp + re.findall(r"\(NEEDED\).*\[(.+?)\]", out):
+                path = name if name.startswith("/") else next(
+                    (os.path.join(d, name) for d in dirs if os.path.exists(os.path.join(d, name))),
+                    None)
+                if path is None:
+                    raise Skip(f"{name} for {triple} not found in {dirs} (multiarch libc6 / "
+                               f"libmodbus5 of that architecture)")
+                if path not in libs:
+                    libs.append(path)
+                    todo.append(os.path.realpath(path))
+        return libs
     out = subprocess.run(["ldd", program], capture_output=True, text=True).stdout
     libs = []
     for line in out.splitlines():
@@ -145,35 +200,44 @@ def parse_trace(text: str) -> list:
             continue
         t = int(m.group(1)) + int(m.group(2)) / 1e6
         fields = {}
-        for k, v in re.findall(r"(\w+)[ =]+(0x[0-9a-fA-F]+|-?\d+(?:\.\d+)?)", m.group(4)):
+        for k, v in re.findall(r"(\w+):?[ =]+(0x[0-9a-fA-F]+|-?\d+(?:\.\d+)?)", m.group(4)):
             fields[k] = int(v, 0) if not re.match(r"-?\d+\.\d+$", v) else float(v)
         events.append((t, m.group(3), fields))
     return events
 
 
 class Bed:
-    def __init__(self, build_dir: str):
+    def __init__(self, build_dir: str, arch: str = "amd64"):
         self.build = os.path.abspath(build_dir)
-        self.cache = os.path.join(self.build, "kernel-guest")
+        self.guest = GUESTS[arch]
+        # the PC guest's cache keeps its name of before the ARM guests
+        self.cache = os.path.join(self.build, "kernel-guest" + ("" if arch == "amd64"
+                                                                  else f"-{arch}"))
+        self.busybox = BUSYBOX if arch == "amd64" else \
+            os.path.join(self.cache, "root", "bin", "busybox")
 
     # ---- what the guest is made of ----
     def kernel(self):
-        if shutil.which(QEMU) is None:
-            raise Skip(f"{QEMU} not found (Debian package qemu-system-x86, .ci/apt-packages.txt)")
-        if not os.path.exists(BUSYBOX):
+        g = self.guest
+        if shutil.which(g.qemu) is None:
+            raise Skip(f"{g.qemu} not found (Debian package {g.qemu_package}, "
+                       f".ci/apt-packages.txt)")
+        if g.arch == "amd64" and not os.path.exists(BUSYBOX):
             raise Skip(f"{BUSYBOX} not found (Debian package busybox-static)")
-        r = subprocess.run([os.path.join(HERE, "fetch_guest.sh"), self.cache],
+        r = subprocess.run([os.path.join(HERE, "fetch_guest.sh"), self.cache, g.arch],
                            capture_output=True, text=True)
         if r.returncode != 0:
             raise Skip("no guest kernel: " + (r.stderr.strip().splitlines() or ["?"])[-1])
         release = r.stdout.strip()
         root = os.path.join(self.cache, "root")
+        if not os.path.exists(self.busybox):
+            raise Skip(f"no busybox in the {g.arch} guest packages (busybox-static:{g.arch})")
         return os.path.join(root, "boot", f"vmlinuz-{release}"), \
             os.path.join(root, "lib", "modules", release)
 
     def initramfs(self, path, moddir, program, args, modules, setup, wait, files):
         c = Cpio()
-        c.file("bin/busybox", open(BUSYBOX, "rb").read())
+        c.file("bin/busybox", open(self.busybox, "rb").read())
         c.symlink("bin/sh", "busybox")
         c.file("init", open(os.path.join(HERE, "guest_init.sh"), "rb").read())
         index = {}
@@ -181,32 +245,56 @@ class Bed:
             for n in names:
                 if n.endswith(".ko"):
                     index[n[:-3].replace("-", "_")] = os.path.join(d, n)
+        builtin = set()
+        if os.path.exists(os.path.join(moddir, "modules.builtin")):
+            builtin = {os.path.basename(ln.strip())[:-3].replace("-", "_")
+                       for ln in open(os.path.join(moddir, "modules.builtin"))}
+        loaded = []
         for m in modules:
             src = index.get(m.replace("-", "_"))
+            if src is None and m.replace("-", "_") in builtin:
+                continue  # built into this kernel
             if src is None:
                 raise Skip(f"module {m} is not in the guest kernel package")
             c.file(f"lib/modules/{m}.ko", open(src, "rb").read(), 0o644)
-        for lib in shared_libs(program):
+            loaded.append(m)
+        modules = loaded
+        for lib in shared_libs(program, self.guest.triple):
             c.file(lib, open(os.path.realpath(lib), "rb").read())
         for src, dest in files:
-            c.file(dest, open(src, "rb").read())
+            data = open(src, "rb").read()
+            c.file(dest, data)
+            if data[:4] == b"\x7fELF":  # another program: its libraries too
+                for lib in shared_libs(src, self.guest.triple):
+                    c.file(lib, open(os.path.realpath(lib), "rb").read())
         c.file("bin/test-program", open(program, "rb").read())
         conf = {"modules": " ".join(modules), "wait": " ".join(wait),
                 "args": " ".join(args)}
         for k, v in conf.items():
             c.file(f"etc/bed/{k}", (v + "\n").encode(), 0o644)
         c.file("etc/bed/setup", ("\n".join(setup) + "\n").encode(), 0o644)
+        g = self.guest
+        c.file("etc/bed/console", (f"/dev/{g.console}\n" if g.arch != "amd64" else "").encode(),
+               0o644)
+        c.file("etc/bed/ctl", (g.ctl + "\n").encode(), 0o644)
         with open(path, "wb") as f:
             f.write(c.bytes())
 
     # ---- one boot ----
     def boot(self, program, args=(), modules=(), setup=(), ports=(), files=(),
-             trace_events=("serial_*", "usb_serial_*"), memory_mb=256) -> Run:
+             trace_events=("serial_*", "usb_serial_*"), memory_mb=256, sim_sets=None) -> Run:
+        """One boot. sim_sets: {NAME: simulator arguments}: the program may ask for a pty
+        port's simulator to be restarted with one of them ({"restart": I, "set": NAME} on the
+        control line), e.g. before each fb test program."""
+        self.sim_sets = dict(sim_sets or {})
         vmlinuz, moddir = self.kernel()
         work = tempfile.mkdtemp(prefix="kbed.")
         procs = []
         try:
-            return self._boot(work, procs, vmlinuz, moddir, program, list(args), list(modules),
+            modules = list(self.guest.modules) + list(modules)
+            if self.guest.arch != "amd64" and tuple(trace_events) == ("serial_*", "usb_serial_*"):
+                trace_events = ("pl011_write", "pl011_read", "pl011_baudrate_change")
+            return self._boot(work, procs, vmlinuz, moddir, program, list(args), modules,
                               list(setup), list(ports), list(files), trace_events, memory_mb)
         finally:
             for p in procs:
@@ -244,12 +332,22 @@ class Bed:
     def _boot(self, work, procs, vmlinuz, moddir, program, args, modules, setup, ports, files,
               trace_events, memory_mb):
         t_start = time.monotonic()
+        self.live = {}  # pty port -> (its simulator, where it serves, the port)
         kinds = [p.kind for p in ports]
         wait = []
         n8250 = nftdi = 0
         serial_slots = {1: None, 3: None}
+        pl011 = None
+        arm = self.guest.arch != "amd64"
         for i, p in enumerate(ports):
-            if p.kind == "8250":
+            if (p.kind == "pl011") != arm:
+                raise ValueError(f"port kind {p.kind} on the {self.guest.arch} guest")
+            if p.kind == "pl011":
+                if pl011 is not None:
+                    raise ValueError("QEMU's virt machine has one PL011")
+                pl011 = i
+                wait.append("/dev/ttyAMA0")
+            elif p.kind == "8250":
                 slot = (1, 3)[n8250]
                 n8250 += 1
                 serial_slots[slot] = i
@@ -274,28 +372,27 @@ class Bed:
                 chardev[i] = "pty"
         trace_file = os.path.join(work, "trace.log")
         console = os.path.join(work, "console.log")
-        cmd = [QEMU, "-accel", "tcg", "-M", "pc", "-m", str(memory_mb), "-nodefaults",
+        g = self.guest
+        cmd = [g.qemu, "-accel", "tcg", *g.machine, "-m", str(memory_mb), "-nodefaults",
                "-no-user-config", "-display", "none", "-no-reboot", "-S", "-monitor", "stdio",
                "-kernel", vmlinuz, "-initrd", initrd,
-               "-append", "console=ttyS0 quiet loglevel=3 panic=-1 8250.nr_uarts=4",
+               "-append", f"console={g.console} quiet loglevel=3 panic=-1" +
+               ("" if arm else " 8250.nr_uarts=4"),
                "-D", trace_file, "-msg", "timestamp=on"]
         for ev in trace_events:
             cmd += ["-trace", f"enable={ev}"]
-        cmd += ["-chardev", f"file,id=con,path={console}", "-serial", "chardev:con"]
-        for slot in (1, 2, 3):
-            if slot == 2:
-                cmd += ["-chardev", "pty,id=ctl", "-serial", "chardev:ctl"]
-            elif serial_slots[slot] is not None:
-                i = serial_slots[slot]
-                cmd += ["-chardev", f"{chardev[i]},id=p{i}", "-serial", f"chardev:p{i}"]
+        if arm:
+            # the PL011 (the first -serial), the console and the control line on virtio
+            if pl011 is not None:
+                cmd += ["-chardev", f"{chardev[pl011]},id=p{pl011}",
+                        "-serial", f"chardev:p{pl011}"]
             else:
                 cmd += ["-serial", "null"]
-        if nftdi:
-            cmd += ["-device", "qemu-xhci,id=xhci"]
-            for i, p in enumerate(ports):
-                if p.kind == "ftdi":
-                    cmd += ["-chardev", f"{chardev[i]},id=p{i}",
-                            "-device", f"usb-serial,bus=xhci.0,chardev=p{i}"]
+            cmd += ["-device", "virtio-serial-device",
+                    "-chardev", f"file,id=con,path={console}", "-device", "virtconsole,chardev=con",
+                    "-chardev", "pty,id=ctl", "-device", "virtconsole,chardev=ctl"]
+        else:
+            cmd += self._pc_ports(console, serial_slots, chardev, ports, nftdi)
         # "char device redirected to ..." comes on stdout or stderr (the monitor has stdio)
         qemu = subprocess.Popen(cmd, stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                 stderr=subprocess.STDOUT, text=True)
@@ -323,17 +420,26 @@ class Bed:
         for i, p in enumerate(ports):
             if p.mode == "pty":
                 ctls[i], _ = self._sim(procs, work, i, p, ["--serial", ptys[f"p{i}"]])
+                self.live[i] = (procs[-1], ["--serial", ptys[f"p{i}"]], p)
         ctl_fd = os.open(ptys["ctl"], os.O_RDWR | os.O_NOCTTY)
         import tty
         tty.setraw(ctl_fd)
         marks = []
+        self.live_work, self.live_procs = work, procs
         relay = threading.Thread(target=self._relay, args=(ctl_fd, ctls, marks), daemon=True)
         relay.start()
+        if arm:
+            # QEMU's PL011 does not pass the guest's line settings to its chardev (its 16550
+            # does), and QEMU opens a tty chardev at 115200 8N1: a paced line then gets the
+            # line's own settings, as the guest programs them
+            for i, p in enumerate(ports):
+                if p.mode == "paced":
+                    line_termios(os.path.realpath(os.path.join(work, f"line{i}")), p.sim_args)
         qemu.stdin.write("cont\n")
         qemu.stdin.flush()
         threading.Thread(target=lambda: drain(out_fd), daemon=True).start()
         try:
-            qemu.wait(timeout=BOOT_LIMIT_S)
+            qemu.wait(timeout=self.guest.limit_s)
         except subprocess.TimeoutExpired:
             qemu.kill()
             qemu.wait()
@@ -350,6 +456,46 @@ class Bed:
         rc = int(m.group(2)) if m else None
         return Run(rc, output, text, parse_trace(open(trace_file, errors="replace").read()),
                    marks, sims, time.monotonic() - t_start)
+
+    @staticmethod
+    def _pc_ports(console, serial_slots, chardev, ports, nftdi):
+        """The PC guest's serial lines: ttyS0 the console, ttyS1 and ttyS3 8250 ports,
+        ttyS2 the control line, FTDI ports behind an xHCI controller."""
+        cmd = ["-chardev", f"file,id=con,path={console}", "-serial", "chardev:con"]
+        for slot in (1, 2, 3):
+            if slot == 2:
+                cmd += ["-chardev", "pty,id=ctl", "-serial", "chardev:ctl"]
+            elif serial_slots[slot] is not None:
+                i = serial_slots[slot]
+                cmd += ["-chardev", f"{chardev[i]},id=p{i}", "-serial", f"chardev:p{i}"]
+            else:
+                cmd += ["-serial", "null"]
+        if nftdi:
+            cmd += ["-device", "qemu-xhci,id=xhci"]
+            for i, p in enumerate(ports):
+                if p.kind == "ftdi":
+                    cmd += ["-chardev", f"{chardev[i]},id=p{i}",
+                            "-device", f"usb-serial,bus=xhci.0,chardev=p{i}"]
+        return cmd
+
+    def _restart(self, i, name, ctls) -> dict:
+        """Simulator i (a pty port's) stopped by pid and started again with the set name."""
+        if i not in self.live or name not in self.sim_sets:
+            return {"ok": False, "error": "no such pty port or simulator set"}
+        proc, where, port = self.live[i]
+        proc.terminate()
+        try:
+            proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+        new = Port(port.kind, self.sim_sets[name], port.mode)
+        try:
+            ctls[i], _ = self._sim(self.live_procs, self.live_work, i, new, where)
+        except RuntimeError as e:
+            return {"ok": False, "error": str(e)}
+        self.live[i] = (self.live_procs[-1], where, new)
+        return {"ok": True}
 
     def _relay(self, fd, ctls, marks):
         buf = b""
@@ -372,6 +518,8 @@ class Bed:
                     if "mark" in req:
                         marks.append((now, req["mark"]))
                         reply = {"ok": True}
+                    elif "restart" in req:
+                        reply = self._restart(req["restart"], req.get("set"), ctls)
                     elif "sim" in req:
                         i = req.pop("sim")
                         reply = sim_request(ctls[i], req) if 0 <= i < len(ctls) and ctls[i] \
@@ -382,6 +530,25 @@ class Bed:
                     os.write(fd, (json.dumps(reply) + "\n").encode())
                 except OSError:
                     return
+
+
+def line_termios(path, sim_args):
+    """Set a tty's baud and character format (raw) from the simulator's --baud / --format."""
+    import termios
+    args = sim_args.split()
+    baud = int(args[args.index("--baud") + 1]) if "--baud" in args else 9600
+    fmt = args[args.index("--format") + 1] if "--format" in args else "8N1"
+    fd = os.open(path, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+    try:
+        iflag, oflag, cflag, lflag, _, _, cc = termios.tcgetattr(fd)
+        speed = getattr(termios, f"B{baud}")
+        cflag &= ~(termios.CSIZE | termios.PARENB | termios.PARODD | termios.CSTOPB)
+        cflag |= termios.CS8 | termios.CLOCAL | termios.CREAD
+        cflag |= {"N": 0, "E": termios.PARENB, "O": termios.PARENB | termios.PARODD}[fmt[1]]
+        cflag |= termios.CSTOPB if fmt[2] == "2" else 0
+        termios.tcsetattr(fd, termios.TCSANOW, [0, 0, cflag, 0, speed, speed, cc])
+    finally:
+        os.close(fd)
 
 
 def drain(fd):

@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
 # Fetches the guest kernel for the kernel test bed into a cache folder of the build tree:
-#   tests/kernel/fetch_guest.sh CACHE_DIR
-# Downloads the packages of .ci/guest-packages.txt with `apt-get download` (a metapackage is
+#   tests/kernel/fetch_guest.sh CACHE_DIR [ARCH]
+# Downloads the packages of .ci/guest-packages.txt for ARCH (default amd64: the names without
+# a suffix; arm64, armhf: the names ending in :ARCH, which need that architecture enabled, as
+# scripts/deps.sh does) with `apt-get download` (a metapackage is
 # followed to the versioned package it depends on) and unpacks them with `dpkg-deb -x`, once:
 # a second call finds CACHE_DIR/ready and prints the same answer. MBFB_GUEST_KERNEL_DEB: a
 # .deb to use instead of downloading (offline). Prints the kernel release (e.g.
@@ -9,6 +11,7 @@
 set -euo pipefail
 here=$(cd "$(dirname "$0")/../.." && pwd)
 cache=$1
+arch=${2:-amd64}
 mkdir -p "$cache"
 cache=$(cd "$cache" && pwd)
 if [ -f "$cache/ready" ]; then
@@ -36,7 +39,13 @@ else
         echo "${dep:-$1}"
     }
     updated=0
-    for p in $(grep -v '^\s*#' "$here/.ci/guest-packages.txt" | xargs); do
+    if [ "$arch" = amd64 ]; then
+        pkgs=$(grep -v '^\s*#' "$here/.ci/guest-packages.txt" | grep -v : | xargs)
+    else
+        pkgs=$(grep -v '^\s*#' "$here/.ci/guest-packages.txt" | grep ":$arch\s*$" | xargs)
+    fi
+    [ -n "$pkgs" ] || { echo "no guest packages for $arch in .ci/guest-packages.txt" >&2; exit 3; }
+    for p in $pkgs; do
         until (cd "$cache/deb" && apt-get download -q "$(resolve "$p")" >/dev/null 2>"$cache/apt.err"); do
             # the package lists may be missing or stale (a fresh container): update once
             if [ "$updated" = 1 ] || [ "$(id -u)" != 0 ]; then

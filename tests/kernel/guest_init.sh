@@ -11,6 +11,15 @@ mkdir -p /tmp && mount -t tmpfs tmp /tmp
 for m in $(cat /etc/bed/modules); do
     insmod "/lib/modules/$m.ko" || echo "BED: insmod $m failed"
 done
+# the console on a device that a module brings (virtio-console on the ARM guests): what init
+# prints goes there once it exists; the program finds the control line in MBFB_BED_CTL
+if [ -s /etc/bed/console ]; then
+    con=$(cat /etc/bed/console)
+    n=0
+    while [ ! -e "$con" ] && [ $n -lt 200 ]; do sleep 0.05; n=$((n + 1)); done
+    exec >"$con" 2>&1
+fi
+export MBFB_BED_CTL="$(cat /etc/bed/ctl)"
 sh /etc/bed/setup || echo "BED: setup failed"
 for d in $(cat /etc/bed/wait); do
     n=0

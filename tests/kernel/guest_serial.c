@@ -11,11 +11,16 @@
  *     bauds:PORT:SIM:B,... one bus per baud: the open's result and one read
  *     kernel:PORT:SIM      Direction KERNEL: the result, and the simulator heard nothing
  *     rts:PORT:SIM:BAUD:BEFORE:AFTER:N   Direction RTS, N reads between marks
+ *     rs485:PORT:SIM:BAUD:BEFORE:AFTER:N Direction KERNEL, N reads between marks, and the
+ *                          driver's RS-485 settings (TIOCGRS485) while the shims hold the port
+ *     fb:NAME:SIM:PORT:BAUD  the fb test program /bin/NAME (tests/fb, cross-built) against
+ *                          simulator SIM restarted with NAME's devices (the bed's set NAME):
+ *                          its port, the simulator's control through the control line
  *     latency:PORT:SIM     the low-latency flag and ftdi_sio's latency_timer once open
  *     bench:PORT:SIM:N     N one-register reads, the elapsed time (bench/kernel_wire.py)
  *     write:PATH:VALUE     write VALUE to a sysfs file (e.g. a UART's rx_trig_bytes)
- * Lines: "RESULT what port key=value ...". The control line (/dev/ttyS2, bed.py) carries the
- * marks and the simulator requests.
+ * Lines: "RESULT what port key=value ...". The control line (MBFB_BED_CTL: /dev/ttyS2 on the
+ * PC guest, /dev/hvc1 on the ARM ones; bed.py) carries the marks and the simulator requests.
  */
 #define _GNU_SOURCE
 #include <fcntl.h>
@@ -24,6 +29,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/ioctl.h>
+#include <sys/wait.h>
 #include <termios.h>
 #include <time.h>
 #include <unistd.h>
@@ -41,7 +47,8 @@ static int control(const char *req, char *reply, size_t n)
 
     if (ctl_fd < 0) {
         struct termios t;
-        if ((ctl_fd = open("/dev/ttyS2", O_RDWR | O_NOCTTY)) < 0)
+        const char *path = getenv("MBFB_BED_CTL");
+        if ((ctl_fd = open(path != NULL && *path ? path : "/dev/ttyS2", O_RDWR | O_NOCTTY)) < 0)
             return -1;
         tcgetattr(ctl_fd, &t);
         cfmakeraw(&t);
@@ -218,6 +225,56 @@ static void rts(const char *port, int baud, int before, int after, int n)
     mbfb_shutdown();
 }
 
+static void rs485(const char *port, int baud, int before, int after, int n)
+{
+    int bus = open_bus(port, baud, MBFB_FRAMING_RTU, MBFB_DIR_KERNEL, before, after);
+    int dev = mbfb_dev_open(bus, 1), good = 0, rc;
+    rc = finish(mbfb_post(dev, MBFB_FC_READ_HOLDING, 0, 1, NULL), NULL, 0); /* opened */
+    /* a second descriptor on the same tty sees the driver's settings */
+    struct serial_rs485 rs;
+    int fd = open(port, O_RDWR | O_NOCTTY | O_NONBLOCK), got = -1;
+    memset(&rs, 0, sizeof rs);
+    if (fd >= 0) {
+        got = ioctl(fd, TIOCGRS485, &rs);
+        close(fd);
+    }
+    mark("rs485", port);
+    for (int i = 0; i < n; i++)
+        good += finish(mbfb_post(dev, MBFB_FC_READ_HOLDING, 0, 1, NULL), NULL, 0) == 0;
+    mark("rs485-end", port);
+    printf("RESULT rs485 %s baud=%d before=%d after=%d open=%d good=%d of=%d ioctl=%d "
+           "enabled=%d on_send=%d after_send=%d delay_before_ms=%u delay_after_ms=%u\n",
+           port, baud, before, after, -rc, good, n, got, (rs.flags & SER_RS485_ENABLED) != 0,
+           (rs.flags & SER_RS485_RTS_ON_SEND) != 0, (rs.flags & SER_RS485_RTS_AFTER_SEND) != 0,
+           rs.delay_rts_before_send, rs.delay_rts_after_send);
+    mbfb_shutdown();
+}
+
+/* An fb test program (tests/fb/fbtest.h's hooks): the simulator restarted with its devices,
+ * the program run to its end with its port and the control line, its exit status. */
+static void fb_program(const char *name, int sim, const char *port, const char *baud)
+{
+    char req[256], reply[256], path[128];
+    const char *ctl = getenv("MBFB_BED_CTL");
+    snprintf(req, sizeof req, "{\"restart\": %d, \"set\": \"%s\"}", sim, name);
+    int ok = control(req, reply, sizeof reply) == 0 && strstr(reply, "\"ok\": true") != NULL;
+    snprintf(path, sizeof path, "/bin/%s", name);
+    int64_t t0 = t_now_us();
+    pid_t pid = ok ? fork() : -1;
+    if (pid == 0) {
+        setenv("MBFB_TEST_PORT", port, 1);
+        setenv("MBFB_SIM_CONTROL", ctl != NULL && *ctl ? ctl : "/dev/ttyS2", 1);
+        setenv("MBFB_TEST_BAUD", baud, 1);
+        execl(path, path, (char *)NULL);
+        _exit(127);
+    }
+    int status = 0, rc = -1;
+    if (pid > 0 && waitpid(pid, &status, 0) == pid && WIFEXITED(status))
+        rc = WEXITSTATUS(status);
+    printf("RESULT fb %s program=%s restarted=%d rc=%d ms=%lld\n", port, name, ok, rc,
+           (long long)((t_now_us() - t0) / 1000));
+}
+
 /* ftdi_sio's latency timer in ms (sysfs), -1 where the port has none. */
 static int latency_timer(const char *port)
 {
@@ -294,6 +351,10 @@ int main(int argc, char **argv)
             kernel_mode(port, sim);
         else if (strcmp(what, "rts") == 0 && a[3])
             rts(port, atoi(a[0]), atoi(a[1]), atoi(a[2]), atoi(a[3]));
+        else if (strcmp(what, "rs485") == 0 && a[3])
+            rs485(port, atoi(a[0]), atoi(a[1]), atoi(a[2]), atoi(a[3]));
+        else if (strcmp(what, "fb") == 0 && a[1])
+            fb_program(port, sim, a[0], a[1]);
         else if (strcmp(what, "latency") == 0)
             latency(port);
         else if (strcmp(what, "bench") == 0 && a[0])
