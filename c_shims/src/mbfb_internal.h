@@ -71,8 +71,8 @@ static inline int mbfb_fc_other_read(int fc)
 /* A device in back-off is probed (one attempt) once per probe interval: at least
  * MBFB_PROBE_MIN_MS, and MBFB_PROBE_SHARE response timeouts, so a dead device costs at
  * most 1/MBFB_PROBE_SHARE of the line however long it stays dead, and a device that
- * comes back is found within one interval (README "Back-off"). A port that could not be
- * opened is tried again after MBFB_PROBE_MIN_MS. */
+ * comes back is found within one interval (README "Failures and what the worker does").
+ * A port that could not be opened is tried again after MBFB_PROBE_MIN_MS. */
 #define MBFB_PROBE_MIN_MS    500
 #define MBFB_PROBE_SHARE     10
 #define MBFB_TURNAROUND_US   10000 /* after a broadcast: SetPro processing max 10 ms */
@@ -271,7 +271,7 @@ typedef struct mbfb_shape {
     uint16_t echo[2];        /* writes: the echo's address and value / count      */
     int64_t t_us;            /* when that attempt was sent                         */
     int readable;            /* reads: inside a range that read well, so never answered
-                                with a fixed exception (mbfb_worker.c)              */
+                                with a fixed exception (mbfb_resync.c)              */
 } mbfb_shape_t;
 
 /** A read range known to be readable on the device (plan items, good reads). */
@@ -395,7 +395,7 @@ typedef struct mbfb_bus {
     uint32_t stray_bytes;    /* atomic: bytes discarded outside replies (diag)     */
     uint8_t heard[MBFB_HEARD_MAX]; /* worker: the last bytes heard during the silence
                                 wait before this attempt (mbfb_serial_quiet), for late
-                                replies (mbfb_worker.c, hear_late_replies)           */
+                                replies (mbfb_resync.c, mbfb_hear_late_replies)      */
     int n_heard;
     uint32_t transactions;   /* atomic: attempts put on the wire                   */
     uint32_t busy_epoch[MBFB_BUSY_BUCKETS]; /* atomic: 100 ms period of the bucket */
