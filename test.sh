@@ -3,6 +3,9 @@
 #                  ./test.sh -L shims   (one label: maps, shims, sim, fb, strucpp, commission,
 #                                        e2e, editor, soak, kernel, cross)
 #                  ./test.sh -R crc     (tests whose name matches)
+#                  ./test.sh --quick    (the edit loop: the shims in their default flavour, the
+#                                        simulator, the maps and one fb test per device block;
+#                                        builds only what those need)
 # Extra arguments go to ctest. Configures build/ first and prints the configure summary (which
 # compiler toolchain, which libmodbus); after the run, each skipped test with its reason.
 # MBFB_BUILD_DIR: the build tree (default build).
@@ -14,6 +17,11 @@
 # something there is named after the run and fails it.
 set -euo pipefail
 cd "$(dirname "$0")"
+quick=0
+if [ "${1:-}" = --quick ]; then
+    quick=1
+    shift
+fi
 scripts/deps.sh     # Debian packages (.ci/apt-packages.txt); no-op when all present
 scripts/venv.sh     # pinned Python in ./.venv
 b=${MBFB_BUILD_DIR:-build}
@@ -29,7 +37,20 @@ if [ "$status" != 0 ]; then
     echo "test.sh: cmake could not configure $b (whole output: $log)" >&2
     exit 1
 fi
-cmake --build "$b" -j"$(nproc)"
+if [ "$quick" = 1 ]; then
+    # the default flavour of the shims (OpenPLC's fork where it is installed), as the blocks use
+    flavours=$(sed -n 's/^MBFB_FLAVOURS:INTERNAL=//p' "$b/CMakeCache.txt")
+    case ";$flavours;" in *";lm_openplc;"*) flavour=lm_openplc ;; *) flavour=lm_debian ;; esac
+    blocks='fb_(mts9|mvd94|fdc|vd)'   # Counter_MTS9, TempCtrl_MVD94, FDC_Controller, TempCtrl_VD
+    quick_re="^(shims_[a-z]+_$flavour|sim\..*|maps\..*|settings\.types|$blocks)\$"
+    # the targets of those tests: each shims and fb test is built as the target of its name
+    targets=$(ctest --test-dir "$b" -N -R "$quick_re" | sed -n 's/^ *Test *#[0-9]*: //p' |
+              grep -E "^(shims_|fb_)" || true)
+    cmake --build "$b" -j"$(nproc)" --target mbfb-ptyline ptyline_model_test $targets
+    set -- -R "$quick_re" "$@"
+else
+    cmake --build "$b" -j"$(nproc)"
+fi
 jobs=(-j "${MBFB_TEST_JOBS:-8}")
 for a in "$@"; do
     case $a in -j*|--parallel*) jobs=() ;; esac

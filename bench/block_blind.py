@@ -37,7 +37,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, os.path.join(ROOT, "tools", "sim"))
 from simctl import Simulator  # noqa: E402
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-import wire_pace as wp  # noqa: E402
+import rig as wp  # noqa: E402
 
 PERIOD_MS = 500
 DEFAULT_BEFORE = "99d66d9^"

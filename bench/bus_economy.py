@@ -28,7 +28,7 @@ import tempfile
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, os.path.join(ROOT, "tools", "sim"))
 from simctl import Simulator  # noqa: E402
-from wire_pace import cache_value  # noqa: E402  (bench/ is on the path: this script's folder)
+from rig import cache_value  # noqa: E402  (bench/ is on the path: this script's folder)
 
 DEFAULT_BEFORE = "e3d8370"        # last commit before the tiered polling (st_src)
 DEVICES = (("mv", 1, "MV-D94", "mvd94:1"), ("fdc", 2, "FDC-100", "fdc100:2"),

@@ -41,7 +41,7 @@ import time
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
 import plant_scale as ps  # noqa: E402
-import wire_pace as wp  # noqa: E402
+import rig as wp  # noqa: E402
 from runner import Runner  # noqa: E402
 
 # "  12.345 ( 0.012 ms): comm/1234 write(fd: 5, buf: 0x..., count: 8)   = 8"

@@ -16,11 +16,11 @@ located %QW variable. The program is compiled as OpenPLC builds it (iec2c -f -l 
 g++ -O0, the shims at -O0: CMake Debug) and linked with the project's runner (tools/runner:
 fb_host.cpp, plc_vars.cpp, plc_control.cpp, plc_host.cpp; task 20 ms in real time, as
 OpenPLC's runtime). Every line is the simulator (its 16 devices) behind ptyline (paced at the
-baud rate, 1..10 ms device turnaround, seeded), as in bench/wire_pace.py.
+baud rate, 1..10 ms device turnaround, seeded), as in bench/rig.py's Line.
 
 The wire run (Period T#0s: every block refreshes back to back), in a window of --seconds after
 --warmup:
-* share of each line's wire: bench/wire_pace.py's Line.figures from ptyline's frame log,
+* share of each line's wire: bench/rig.py's Line.figures from ptyline's frame log,
   sum over the requests of (t3.5 + request + measured turnaround + reply) / window (log
   entries of one direction back to back on the wire joined into one frame: PlantLine); the
   silence before each request; requests after less than t3.5, requests with no reply next,
@@ -38,7 +38,7 @@ The wire run (Period T#0s: every block refreshes back to back), in a window of -
 The scan cost (--skip cost leaves it out): the same program under
 `valgrind --tool=callgrind --dump-after=config_run__*` (one profile per scan), Period T#30s
 (steady: no refresh due after the first ones) and T#0s (refreshes back to back), against
-each block alone in bench/scan_cost.py's measure() (bench/wire_pace.py's device_program, one
+each block alone in bench/scan_cost.py's measure() (bench/rig.py's device_program, one
 block, same line settings) with the same periods. Per scan: the program body's inclusive Ir
 (MAIN_body__), each block type's bodies (calls, Ir) and which blocks published (calls of
 scale_pub_<kind>, an empty C function the program calls on a refresh). Steady: the mean over
@@ -48,7 +48,7 @@ T#0s (per kind: n x the cost of a scan without a refresh + the scan's refreshes 
 a scan with one - that)).
 
 Versions side by side (--variant NAME=REF, repeatable; REF a commit, exported with `git archive`
-and built as wire_pace.py's Variant does, or `worktree`; NAME=REF@N runs that arm's program at
+and built as rig.py's Variant does, or `worktree`; NAME=REF@N runs that arm's program at
 nice N, NAME=REF@/M its lines (ptyline and the simulator) at nice M, NAME=REF@N/M both: what
 the machine's load costs, and whose CPU the share waits for): the wire runs of the versions interleaved,
 --rounds of each (A B A B ...), and one table of the shares and gaps of every run at the end.
@@ -80,7 +80,7 @@ ROOT = os.path.dirname(HERE)
 sys.path.insert(0, HERE)
 sys.path.insert(0, os.path.join(ROOT, "tools", "runner"))
 import scan_cost as sc  # noqa: E402
-import wire_pace as wp  # noqa: E402
+import rig as wp  # noqa: E402
 from runner import Runner  # noqa: E402
 
 # (block, simulator kind, short name)
@@ -133,7 +133,7 @@ def compile_runner(v: wp.Variant, key: str, program: str) -> str:
 
 
 class PlantLine(wp.Line):
-    """wire_pace's Line, whose frames() joins entries of one direction that are back to back on
+    """rig.py's Line, whose frames() joins entries of one direction that are back to back on
     the wire (less than 1.5 characters apart): ptyline, delayed under load, may log one frame
     in pieces (a request as 8 one-byte entries), which a receiver hears as one frame."""
 
@@ -301,7 +301,7 @@ def plant_cost(exe: str, ptyline: str, tmp: str, devs, args) -> list[dict]:
 
 
 def alone_cost(v: wp.Variant, tmp: str, args, period: str) -> dict:
-    """scan_cost.measure of each block alone (wire_pace's device_program) on the plant's line settings."""
+    """scan_cost.measure of each block alone (rig.py's device_program) on the plant's line settings."""
     out = {}
     for block, dev, short in KINDS:
         port = os.path.join(tmp, f"alone-{short}-{period.replace('#', '')}")

@@ -33,7 +33,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, os.path.join(ROOT, "tools", "sim"))
 sys.path.insert(0, os.path.join(ROOT, "bench"))
 from simctl import Simulator  # noqa: E402
-from wire_pace import cache_value, run, stop  # noqa: E402
+from rig import cache_value, run, stop  # noqa: E402
 
 BAUD, FMT, DEVICE, FC, ADDR, COUNT = 9600, "8N2", "mvd94:1", 3, 0, 17
 

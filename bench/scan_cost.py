@@ -5,12 +5,12 @@
     .venv/bin/python bench/scan_cost.py --help
 
 Not a test: it prints figures (st_src/README.md, "Scan cost"). For each variant (a commit
-exported with `git archive`, or the working tree: bench/wire_pace.py's Variant) and each
+exported with `git archive`, or the working tree: bench/rig.py's Variant) and each
 build of the shims (--shims: O0 = CMAKE_BUILD_TYPE Debug, as OpenPLC compiles them with the
 program; O2 = RelWithDebInfo), for Counter_MTS9 (MT-S9, 115200 8N1), TempCtrl_MVD94,
 FDC_Controller and MB_Poll (19200 8N2; MB_Poll reads coils, holding registers, discrete inputs
 and input registers of the simulator's generic device bench/poll_device.json, 5 words), each
-in wire_pace's `device_program` (one block, task 20 ms)
+in rig.py's `device_program` (one block, task 20 ms)
 with `Period := T#30s` ("steady": no new snapshot after the first refresh), `T#1s`
 ("published": a snapshot every second, so `Age` and `SettingsAge` are computed in the scans
 between, the steady scan of a block whose data are published) and `T#0s` ("pick-up"): the program is built as OpenPLC builds it (iec2c -f -l -p -r -R -a, g++ -O0,
@@ -54,7 +54,7 @@ import tempfile
 import time
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-import wire_pace as wp  # noqa: E402
+import rig as wp  # noqa: E402
 
 # (block, simulator device, baud, format)
 POLL_DEVICE = os.path.join(os.path.dirname(os.path.abspath(__file__)), "poll_device.json")

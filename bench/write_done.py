@@ -5,7 +5,7 @@
 
 Not a test: it prints figures (bench/README.md, "Write Done"). One MV-D94 (TempCtrl_MVD94) at
 9600 8N2 on a line paced by ptyline (tools/sim/ptyline, 1..10 ms device turnaround, seeded: the
-line and simulator of bench/wire_pace.py, whose helpers this script imports). An ST program,
+line and simulator of bench/rig.py, whose helpers this script imports). An ST program,
 built as OpenPLC builds it (iec2c, g++ -O0) and run in real time by bench/wirepace/wp_host.cpp
 (SCHED_FIFO like OpenPLC), raises WriteSV with a new set point (100, 101, ... as raw counts,
 DP 0) --every scans after the previous write ended, and marks (wp_mark) the scan in which
@@ -45,8 +45,8 @@ import sys
 import time
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-import wire_pace as wp  # noqa: E402  (its Variant, Line, CONFIG, host_json, log)
-from modsim.frames import crc_bytes  # noqa: E402  (tools/sim, on the path through wire_pace)
+import rig as wp  # noqa: E402  (its Variant, Line, CONFIG, host_json, log)
+from modsim.frames import crc_bytes  # noqa: E402  (tools/sim, on the path through rig)
 
 SV_BASE = 100              # set points written: SV_BASE + (k MOD 1000), raw counts at DP 0
 

@@ -5,7 +5,9 @@
 # stay small. A crash, leak, sanitizer report, timeout or failed invariant stops that harness
 # with a non-zero status; its input is kept in <build>/fuzz/artifacts/ and the script fails.
 # Build dir: $MBFB_BUILD_DIR (default build/). Without clang: skipped (exit 0), or an error
-# under MBFB_REQUIRE_TOOLCHAIN=1 (CI).
+# under MBFB_REQUIRE_TOOLCHAIN=1 (CI). MBFB_FUZZ_PARALLEL=1: the harnesses run at the same
+# time (SECONDS of wall time for all of them, each with a share of the cores: fewer
+# executions each; .ci/run does this), their reports printed in order afterwards.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 secs=${1:-60}
@@ -37,22 +39,46 @@ work=$(mktemp -d "${TMPDIR:-/tmp}/mbfb-fuzz-XXXXXX")
 trap 'rm -rf "$work"' EXIT
 artifacts="$build/fuzz/artifacts"
 mkdir -p "$artifacts"
-status=0
+# one harness: run_one NAME (its output in $work/NAME.log, its status in $work/NAME.rc)
+run_one() {
+  local h=$1 rc=0
+  "$build/fuzz/$h" -max_total_time="$secs" -timeout=60 -rss_limit_mb=2048 -max_len=4104 \
+      -print_final_stats=1 -artifact_prefix="$artifacts/$h-" "$work/$h" \
+      > "$work/$h.log" 2>&1 || rc=$?
+  echo "$rc" > "$work/$h.rc"
+}
+report() {
+  local h=$1
+  if [ "$(cat "$work/$h.rc")" = 0 ]; then
+    runs=$(sed -n 's/^stat::number_of_executed_units: *//p' "$work/$h.log")
+    echo "fuzz: $h: ok, ${runs:-?} executions, corpus $(ls "$work/$h" | wc -l) inputs"
+  else
+    echo "fuzz: $h: FAILED (input kept in $artifacts/); its last output:" >&2
+    tail -n 40 "$work/$h.log" >&2
+    return 1
+  fi
+}
 for h in "${harnesses[@]}"; do
   bin="$build/fuzz/$h"
   [ -x "$bin" ] || { echo "fuzz: error: no harness $h ($bin)" >&2; exit 2; }
   mkdir -p "$work/$h"
   cp fuzz/corpus/"$h"/* "$work/$h"/
-  echo "fuzz: $h for ${secs} s"
-  if "$bin" -max_total_time="$secs" -timeout=60 -rss_limit_mb=2048 -max_len=4104 \
-      -print_final_stats=1 -artifact_prefix="$artifacts/$h-" "$work/$h" \
-      > "$work/$h.log" 2>&1; then
-    runs=$(sed -n 's/^stat::number_of_executed_units: *//p' "$work/$h.log")
-    echo "fuzz: $h: ok, ${runs:-?} executions, corpus $(ls "$work/$h" | wc -l) inputs"
-  else
-    status=1
-    echo "fuzz: $h: FAILED (input kept in $artifacts/); its last output:" >&2
-    tail -n 40 "$work/$h.log" >&2
-  fi
 done
+status=0
+if [ "${MBFB_FUZZ_PARALLEL:-0}" = 1 ]; then
+  echo "fuzz: ${harnesses[*]} at the same time for ${secs} s"
+  pids=()
+  for h in "${harnesses[@]}"; do
+    run_one "$h" &
+    pids+=($!)
+  done
+  for p in "${pids[@]}"; do wait "$p"; done
+  for h in "${harnesses[@]}"; do report "$h" || status=1; done
+else
+  for h in "${harnesses[@]}"; do
+    echo "fuzz: $h for ${secs} s"
+    run_one "$h"
+    report "$h" || status=1
+  done
+fi
 exit $status

@@ -59,16 +59,30 @@ def fc06(frames, slave):
     return out
 
 
-def request_while_offline(sim, slave, valid, write):
+TASK_S = 0.050  # the examples' task interval (T#50ms)
+
+
+def program_time(client, seconds, what):
+    """Wait until the program has run `seconds` of its own time: that many task intervals of
+    scans, counted by its heartbeat (HR 8, +1 per scan). OpenPLC v3 advances the program's
+    clock by one interval per scan (its TONs count in scans), so this is the program's retry
+    wait however slowly a loaded machine runs it; a wait for that, not a clock."""
+    n = round(seconds / TASK_S)
+    b0 = client.hr(BEAT)[0]
+    wait(lambda: (client.hr(BEAT)[0] - b0) & 0xFFFF >= n, 30 + 20 * seconds,
+         f"{n} scans of the program ({what})")
+
+
+def request_while_offline(sim, client, slave, valid, write):
     """Take `slave` offline, wait until not valid(), clear the simulator's log, write() the
-    request, check that no FC06 goes to it for longer than the program's 2 s retry wait, and
-    bring it back online (also on failure)."""
+    request, check that no FC06 goes to it for longer than the program's 2 s retry wait (in
+    the program's time), and bring it back online (also on failure)."""
     sim.ctl("offline", addr=slave, on=True)
     try:
         wait(lambda: not valid(), 30, f"slave {slave} not valid")
         sim.log(clear=True)
         write()
-        time.sleep(3.0)
+        program_time(client, 3.0, "one and a half retry waits")
         assert fc06(sim.log(clear=False), slave) == [], "a request was sent while the zone was not valid"
     finally:
         sim.ctl("offline", addr=slave, on=False)
@@ -139,10 +153,10 @@ def test_request_written_while_the_device_is_offline_is_sent_once_it_is_valid(pl
     sim, plc, client = plant
     wait(lambda: coils(client)[C_Z2VALID], 30, "zone 2 valid")
     new = 1200 if sim.ctl("get", addr=2, reg="SV")["raw"] != 1200 else 1250
-    request_while_offline(sim, 2, lambda: coils(client)[C_Z2VALID], lambda: client.write(Z2SPREQ, new))
+    request_while_offline(sim, client, 2, lambda: coils(client)[C_Z2VALID], lambda: client.write(Z2SPREQ, new))
     wait(lambda: sim.ctl("get", addr=2, reg="SV")["raw"] == new, 60, "the request to reach the MV-D94")
     wait(lambda: hr(client, Z2SV)[0] == new, 10, "the PLC to read back the new SV")
-    time.sleep(2.5)
+    program_time(client, 2.5, "a doubled write would come within a retry wait")
     assert fc06(sim.log(clear=True), 2) == [(0, new)], "the request must be written exactly once"
     assert hr(client, Z2SPSTATUS)[0] == 0
 
@@ -156,7 +170,7 @@ def test_out_of_range_request_is_refused_not_sent_and_not_retried(plant):
     sim.log(clear=True)
     client.write(Z2SPREQ, hilt + 100)
     wait(lambda: hr(client, Z2SPSTATUS)[0] == 202, 10, "status 202 (out of range)")
-    time.sleep(5.0)  # two and a half retry waits: a retry would be an FC06 or another status
+    program_time(client, 5.0, "two and a half retry waits: a retry would be an FC06 or another status")
     assert fc06(sim.log(clear=True), 2) == [], "an out-of-range set point went on the wire"
     assert hr(client, Z2SPSTATUS)[0] == 202
     assert sim.ctl("get", addr=2, reg="SV")["raw"] == sv
@@ -164,7 +178,7 @@ def test_out_of_range_request_is_refused_not_sent_and_not_retried(plant):
     client.write(Z2SPREQ, good)
     wait(lambda: sim.ctl("get", addr=2, reg="SV")["raw"] == good, 10, "the next request to reach the MV-D94")
     wait(lambda: hr(client, Z2SPSTATUS)[0] == 0, 10, "status 0 (sent)")
-    time.sleep(2.5)
+    program_time(client, 2.5, "a doubled write would come within a retry wait")
     assert fc06(sim.log(clear=True), 2) == [(0, good)], "the request must be written exactly once"
 
 

@@ -3,14 +3,13 @@ the OpenPLC Editor generated from examples/heat_treat_ld/plc.xml compiled by com
 the runtime's Modbus TCP server on loopback (private namespace), the simulator on a pty, pymodbus
 as the SCADA. Register map: examples/heat_treat_ld/README.md."""
 import os
-import time
 
 import pytest
 
 import oplc
 from oplc import s16, wait
 
-from test_runtime import fc06, product_switch, request_while_offline, running_example  # noqa: E402
+from test_runtime import fc06, product_switch, program_time, request_while_offline, running_example  # noqa: E402
 
 EXAMPLE = os.path.join(oplc.ROOT, "examples", "heat_treat_ld", "heat_treat_ld.st")
 PORT = 5502
@@ -81,7 +80,7 @@ def test_ld_out_of_range_request_is_refused_not_sent_and_not_retried(plant, vali
     sim.log(clear=True)
     client.write(req, bad)
     wait(lambda: client.hr(status)[0] == 202, 10, "status 202 (out of range)")
-    time.sleep(5.0)  # two and a half retry waits
+    program_time(client, 5.0, "two and a half retry waits")
     assert fc06(sim.log(clear=True), addr) == [], "an out-of-range set point went on the wire"
     assert client.hr(status)[0] == 202
     assert sim.ctl("get", addr=addr, reg=reg)["eng"] == before
@@ -90,7 +89,7 @@ def test_ld_out_of_range_request_is_refused_not_sent_and_not_retried(plant, vali
     wait(lambda: round(10 * sim.ctl("get", addr=addr, reg=reg)["eng"]) == good, 10,
          "the next request to reach the controller")
     wait(lambda: client.hr(status)[0] == 0, 10, "status 0 (sent)")
-    time.sleep(2.5)
+    program_time(client, 2.5, "a doubled write would come within a retry wait")
     assert len(fc06(sim.log(clear=True), addr)) == 1, "the request must be written exactly once"
 
 
@@ -99,11 +98,11 @@ def test_ld_request_written_while_zone1_is_offline_is_sent_once_it_is_valid(plan
     sim, client = plant
     wait(lambda: client.coils(10)[C_Z1VALID], 30, "zone 1 valid")
     new = 1250 if round(10 * sim.ctl("get", addr=1, reg="SP1")["eng"]) != 1250 else 1350
-    request_while_offline(sim, 1, lambda: client.coils(10)[C_Z1VALID], lambda: client.write(Z1SPREQ, new))
+    request_while_offline(sim, client, 1, lambda: client.coils(10)[C_Z1VALID], lambda: client.write(Z1SPREQ, new))
     wait(lambda: round(10 * sim.ctl("get", addr=1, reg="SP1")["eng"]) == new, 60,
          "the request to reach the FDC-100")
     wait(lambda: s16(client.hr(Z1SV)[0]) == new, 10, "the PLC to read back the new SV")
-    time.sleep(2.5)
+    program_time(client, 2.5, "a doubled write would come within a retry wait")
     assert len(fc06(sim.log(clear=True), 1)) == 1, "the request must be written exactly once"
     assert client.hr(Z1SPSTATUS)[0] == 0
 

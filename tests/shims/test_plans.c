@@ -248,7 +248,8 @@ static void stop(void)
 {
     mbfb_plan_item_t it[1] = {{3, 0, 1, MBFB_TIER_EVERY}};
     mbfb_snap_t s;
-    uint32_t seq = 0, a;
+    uint32_t seq = 0, a, refreshes;
+    uint16_t w[1];
     int dev, plan, n;
 
     plan = open_plan("stop", &dev);
@@ -261,13 +262,20 @@ static void stop(void)
     a = seq;
     /* The refresh on the wire when stop was called may finish, however slowly (its one
      * read: up to 1 + retries failed attempts, each maybe followed by a resync read),
-     * and publish one snapshot; nothing starts after it. Running on, the plan (period 0)
-     * would send hundreds of frames in this time. Counted, not timed. */
-    t_sleep_ms(700);
+     * and publish one snapshot; nothing starts after it. The worker's own order shows it:
+     * a read posted now goes after that refresh, and a second read posted once the first
+     * is done is the next frame the device hears: a plan still running (period 0, always
+     * due) would take its turn between the two. Counted, not timed. */
+    CHECK_EQ(t_run(dev, 3, 0, 1, NULL, w, 1), 1);
+    CHECK(peer_count(&P) <= n + 2 * (1 + 3) + 1);
+    n = peer_count(&P);
+    refreshes = t_diag(dev).refreshes;
+    CHECK_EQ(t_run(dev, 3, 0, 1, NULL, w, 1), 1);
+    CHECK_EQ(peer_count(&P), n + 1);
+    CHECK_EQ(t_diag(dev).refreshes, refreshes);
     while (mbfb_plan_take(plan, &seq, &s) == 1) {
     }
     CHECK(seq - a <= 1u);
-    CHECK(peer_count(&P) <= n + 2 * (1 + 3));
     CHECK_EQ(mbfb_plan_stop(-5), -MBFB_E_BADHANDLE);
     teardown();
 }

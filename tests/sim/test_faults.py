@@ -78,7 +78,13 @@ def test_late_device_is_busy_until_it_has_replied(sim, raw_factory):
     first = raw.xfer(READ, wait=0.2)                        # times out ...
     other = hexu(raw.xfer(crc("02 03 00 00 00 01"), wait=0.1))  # another slave answers
     retry = raw.xfer(crc("01 03 00 01 00 01"), wait=1.0)    # ... a retry (another register)
-    time.sleep(0.8)                                         # the late reply is out by now
+    def settled():  # both requests logged, the late reply out, every request not ignored answered
+        log = sim.log(clear=False)
+        rx = [f for f in log if f["dir"] == "rx" and f["hex"].startswith("01 03")]
+        tx = [f for f in log if f["dir"] == "tx" and f["hex"].startswith("01 03")]
+        answered = [f for f in rx if f.get("info") is None]
+        return len(rx) == 2 and any(f["hex"] == GOOD for f in tx) and len(tx) == len(answered)
+    sim.wait_for(settled)                                   # (the simulator's log, not a clock)
     log = sim.log()
     stats = sim.ctl("stats")["devices"]
     delta = lambda a, k: stats[a][k] - before[a][k]

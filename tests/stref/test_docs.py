@@ -1,8 +1,11 @@
 """The pages say what the code does, where that can be checked without running anything:
 every link between the project's pages resolves, the error-id bands and the ids in use the
 pages state are mbfb.h's, every section a comment or page cites as `FILE, "Section"` exists in
-that file, and no "issue N" is left in the code, the tests, the benchmarks or the pages (the
-history is in git)."""
+that file, no "issue N" is left in the code, the tests, the benchmarks or the pages (the
+history is in git), and the claims that drifted before: the files with `{{ }}` pragmas as
+st_src/README.md lists them, the tests that run alone as README.md names them (from ctest's
+properties), the shim calls per scan quoted alike in README.md and st_src/README.md and as
+bench/README.md measured them."""
 import os
 import re
 import subprocess
@@ -113,3 +116,102 @@ def test_no_issue_numbers_left():
             if re.search(r"\bissue\s+#?\d+", line, re.I):
                 bad.append(f"{rel}:{i}: {line.strip()[:80]}")
     assert not bad, '"issue N" (the history is in git):\n' + "\n".join(bad)
+
+
+def words(text):
+    """A page's text on one line: the claims below may wrap anywhere."""
+    return " ".join(text.split())
+
+
+def pragma_files():
+    """The st_src files that hold a {{ }} pragma (their text outside comments and strings
+    is not parsed: a {{ in an ST comment would count, and none is there)."""
+    return sorted(os.path.basename(f) for f in tracked(".st")
+                  if f.startswith("st_src/") and "{{" in read(f))
+
+
+def test_the_pragma_files_are_those_listed():
+    """st_src/README.md lists the files with pragmas once; every other page that says where
+    pragmas are names none of them (it refers to that list)."""
+    have = pragma_files()
+    assert len(have) >= 5
+    m = re.search(r"Files with pragmas: (.*?); no other file has one", words(read("st_src/README.md")))
+    assert m, "st_src/README.md: no 'Files with pragmas: ...; no other file has one' sentence"
+    listed = sorted(set(re.findall(r"`(\w+\.st)`", m.group(1))))
+    assert listed == have, f"st_src/README.md lists {listed}; st_src has pragmas in {have}"
+    stems = {os.path.splitext(f)[0] for f in tracked(".st") if f.startswith("st_src/")}
+    bad = []
+    for page in tracked(".md"):
+        if page == "st_src/README.md" or page.startswith("st_src/REFERENCE"):
+            continue
+        for sentence in re.split(r"(?<=[.;])\s", words(read(page))):
+            if "{{ }}" in sentence and re.search(r"\bonly\b|\blists?\b|\bhold", sentence):
+                named = set(re.findall(r"`(\w+?)(?:\.st)?`", sentence)) & stems
+                if named:
+                    bad.append(f"{page}: names {sorted(named)} where pragmas are: {sentence[:120]}")
+    assert not bad, "where pragmas are is said in st_src/README.md only:\n" + "\n".join(bad)
+
+
+def ctest_tests():
+    """The build tree's tests with their properties (ctest --show-only=json-v1), or None
+    without a configured build tree."""
+    build = os.environ.get("MBFB_BUILD_DIR") or os.path.join(ROOT, "build")
+    if not os.path.isfile(os.path.join(build, "CTestTestfile.cmake")):
+        return None
+    import json
+    out = subprocess.run([os.environ.get("MBFB_CTEST", "ctest"), "--test-dir", build,
+                          "--show-only=json-v1"], capture_output=True, text=True, check=True).stdout
+    tests = {}
+    for t in json.loads(out)["tests"]:
+        tests[t["name"]] = {p["name"]: p["value"] for p in t.get("properties", [])}
+    return tests
+
+
+def test_the_serial_tests_are_those_the_readme_names():
+    """README.md, "Tests": the tests that run alone (RUN_SERIAL), by name or name* pattern;
+    each pattern names serial tests only and every serial test is named."""
+    import fnmatch
+    tests = ctest_tests()
+    if tests is None:
+        import pytest
+        pytest.skip("no configured build tree (MBFB_BUILD_DIR or build/): the tests' "
+                    "properties come from ctest")
+    m = re.search(r"\(`RUN_SERIAL`: (.*?); `docs_true` checks this list", words(read("README.md")))
+    assert m, "README.md: no '(`RUN_SERIAL`: ...; `docs_true` checks this list' sentence"
+    patterns = re.findall(r"`([\w.*]+)`", m.group(1))
+    serial = {n for n, p in tests.items() if p.get("RUN_SERIAL")}
+    assert serial, "no RUN_SERIAL test at all: the README's list says otherwise"
+    for pat in patterns:
+        hits = fnmatch.filter(tests, pat)
+        assert hits, f"README.md names `{pat}` as serial: no such test"
+        parallel = sorted(set(hits) - serial)
+        assert not parallel, f"README.md says `{pat}` runs alone; these do not: {parallel}"
+    unnamed = sorted(n for n in serial if not any(fnmatch.fnmatch(n, p) for p in patterns))
+    assert not unnamed, f"RUN_SERIAL tests the README does not name: {unnamed}"
+
+
+def test_shim_calls_per_scan_quoted_alike():
+    """The shim calls per scan are bench/README.md's table; README.md and st_src/README.md
+    quote its most and its steady figure, the same in both."""
+    rows = re.findall(r"^\| `(\w+)` \|.*\| (\d+) / (\d+) \|$",
+                      section(read("bench/README.md"), "Scan cost of a block"), re.M)
+    assert len(rows) >= 3, "bench/README.md, 'Scan cost of a block': no shim-call column"
+    steady = {int(s) for _, s, _ in rows}
+    most = max(int(p) for _, _, p in rows)
+    assert len(steady) == 1, f"steady shim calls differ between blocks: {rows}"
+    quoted = {}
+    for page in ("README.md", "st_src/README.md"):
+        found = re.findall(r"at most (\d+) (?:instructions|of them) \((\d+) in a steady scan\)",
+                           words(read(page)))
+        assert len(found) == 1, f"{page}: the shim calls per scan quoted {len(found)} times"
+        quoted[page] = tuple(map(int, found[0]))
+    assert set(quoted.values()) == {(most, steady.pop())}, \
+        f"shim calls per scan: bench/README.md at most {most}; quoted {quoted}"
+
+
+def section(text, title):
+    """The text of a Markdown section (## or ###) from its heading to the next one of its level."""
+    m = re.search(r"^(#+) " + re.escape(title) + r".*$", text, re.M)
+    assert m, f"no section {title!r}"
+    end = re.search(r"^#{1,%d} " % len(m.group(1)), text[m.end():], re.M)
+    return text[m.end(): m.end() + end.start()] if end else text[m.end():]

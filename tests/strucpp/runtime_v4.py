@@ -193,7 +193,7 @@ def stopped(daemon, sim, lib):
         fail("no PING:OK after STOP", daemon)
     if daemon.mapped(lib):
         fail(f"{lib} still mapped after STOP (dlclose did not unmap it)", daemon)
-    time.sleep(0.3)   # the daemon closes our last connection after we do
+    # (daemon.command returns once the daemon has closed that connection too)
     return t_stopped - t_cmd, daemon.threads(), daemon.fds()
 
 

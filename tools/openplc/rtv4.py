@@ -238,7 +238,9 @@ class Daemon:
             return f.read()
 
     def command(self, cmd, timeout=10.0):
-        """One command on a fresh connection (the daemon serves one client at a time)."""
+        """One command on a fresh connection (the daemon serves one client at a time). Returns
+        once the daemon has closed its end too (it reads until our end is shut: then its
+        connection is gone from its threads and fds, and the next command has the socket)."""
         s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
         s.settimeout(timeout)
         try:
@@ -253,6 +255,12 @@ class Daemon:
                 if not chunk:
                     break
                 buf += chunk
+            try:
+                s.shutdown(socket.SHUT_WR)
+                while s.recv(65536):     # until the daemon closes: EOF
+                    pass
+            except OSError:              # it closed first, or did not within the timeout
+                pass
             return buf.decode(errors="replace").strip()
         finally:
             s.close()
