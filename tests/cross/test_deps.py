@@ -1,4 +1,4 @@
-"""scripts/deps.sh on a machine with foreign architectures enabled (issue 34): a package is
+"""scripts/deps.sh on a machine with foreign architectures enabled: a package is
 checked for the machine's own architecture (or `all`), so a multiarch package installed for
 several architectures (libmodbus-dev for amd64 and arm64) is not "missing" and nothing runs
 apt-get; a package installed only for a foreign architecture is missing; `NAME:ARCH` in the

@@ -1,4 +1,4 @@
-"""A generic Modbus device served from a description file (README.md, "Generic device").
+"""A generic Modbus device served from a description file (tools/sim/README.md, "Generic device").
 
 The description names what the device holds: holding and input register ranges and coil and
 discrete-input bit ranges, each with its values (16-bit words, or typed values INT/UINT/DINT/
