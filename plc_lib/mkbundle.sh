@@ -6,7 +6,7 @@
 #   our ST blocks (dist's webserver/lib/mbfb.txt), as program POUs: matiec compiles them itself;
 #   PROGRAM.st;
 #   (*FILE:path line*) lines: OpenPLC's upload (webserver/openplc.py compile_program) writes each
-#     into core/<path>: the shims (mbfb*.h, mbfb_*.cpp) and core/c_blocks.h = #include "mbfb.h";
+#     into core/<path>: the shims (mbfb*.h, mbfb_*.cpp) and core/c_blocks.h = #include "mbfb_st.h";
 #   (*DBG:...*) lines, only if PROGRAM.st has none: an empty debugger table (debug_stub.cpp).
 #     openplc.py strips FILE lines from the program only when DBG lines are present; without
 #     them matiec would read C code as ST comments.
@@ -37,7 +37,7 @@ echo
 grep '^webserver/core/' "$dist/MANIFEST" | while read -r f; do
     file_lines "$(basename "$f")" "$dist/$f"
 done
-echo '#include "mbfb.h"' | file_lines c_blocks.h -
+echo '#include "mbfb_st.h"' | file_lines c_blocks.h -
 if ! grep -q '^(\*DBG:' "$1"; then
     sed 's/^/(*DBG:/; s/$/*)/' "$here/debug_stub.cpp"
 fi

@@ -18,7 +18,8 @@ def test_bundle_compiles_through_openplc_upload_handler(scratch, dist, tmp_path)
         subprocess.run([os.path.join(oplc.ROOT, "plc_lib", "mkbundle.sh"), "--dist", dist, EXAMPLE],
                        stdout=f, check=True)
     text = bundle.read_text()
-    assert "(*FILE:mbfb.h " in text and "(*FILE:c_blocks.h #include \"mbfb.h\"*)" in text
+    assert "(*FILE:mbfb.h " in text and "(*FILE:mbfb_st.h " in text \
+        and "(*FILE:c_blocks.h #include \"mbfb_st.h\"*)" in text
     assert "(*DBG:" in text
     name = "bundle.st"
     os.replace(bundle, os.path.join(scratch.web, "st_files", name))
@@ -37,7 +38,7 @@ def test_bundle_compiles_through_openplc_upload_handler(scratch, dist, tmp_path)
         shims = [os.path.basename(p.strip()) for p in f if p.startswith("webserver/core/")]
     for s in shims:
         assert os.path.exists(os.path.join(core, s)), f"upload did not write core/{s}"
-    assert open(os.path.join(core, "c_blocks.h")).read().strip() == '#include "mbfb.h"'
+    assert open(os.path.join(core, "c_blocks.h")).read().strip() == '#include "mbfb_st.h"'
     # The program file OpenPLC kept is plain ST again (FILE/DBG lines stripped by openplc.py).
     kept = open(os.path.join(scratch.web, "st_files", name)).read()
     assert "(*FILE:" not in kept and "(*DBG:" not in kept and "FUNCTION_BLOCK TempCtrl_MVD94" in kept
