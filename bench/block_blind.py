@@ -91,7 +91,8 @@ def build(src: str, work: str, home: str) -> str:
     exe = os.path.join(work, "block_blind")
     sh(["g++", "-std=gnu++11", "-O2", "-w", "-I", os.path.join(home, "webserver", "core", "lib"),
         "-I", runner, "-I", os.path.join(ROOT, "tests", "fb"), "-I", inc, "-I", work,
-        "-include", "mbfb.h", "-include", "fbtest.h", "-include", "blind_clock.h", "-o", exe, "Config0.c", "Res0.c", "glue.c", "blind_clock.cpp"]
+        "-include", "mbfb_st.h" if os.path.exists(os.path.join(inc, "mbfb_st.h")) else "mbfb.h",
+        "-include", "fbtest.h", "-include", "blind_clock.h", "-o", exe, "Config0.c", "Res0.c", "glue.c", "blind_clock.cpp"]
        + [os.path.join(runner, f) for f in ("fb_host.cpp", "plc_vars.cpp", "plc_control.cpp",
                                              "plc_host.cpp")]
        + [os.path.join(ROOT, "tests", "fb", "fbtest_hooks.cpp")]

@@ -76,7 +76,7 @@ def build(build_dir: str, work: str, sources: list[str], program: str) -> str:
     subprocess.run(["g++", "-std=gnu++11", "-O2", "-w", "-I", os.path.join(home, "webserver", "core", "lib"),
                     "-I", os.path.join(ROOT, "tests", "fb"), "-I", os.path.join(ROOT, "c_shims", "include"),
                     "-I", os.path.join(ROOT, "tools", "runner"),
-                    "-I", work, "-include", "mbfb.h", "-include", "fbtest.h", "-o", exe,
+                    "-I", work, "-include", "mbfb_st.h", "-include", "fbtest.h", "-o", exe,
                     "Config0.c", "Res0.c", "glue.c",
                     os.path.join(build_dir, "tests", "fb", "libmbfb_test_host.a"),
                     os.path.join(build_dir, "c_shims", "libmbfb.a"), lm, "-lpthread",

@@ -126,7 +126,7 @@ def compile_runner(v: wp.Variant, key: str, program: str) -> str:
     exe = os.path.join(work, "plant")
     wp.run(["g++", "-std=gnu++11", "-O0", "-w", "-I", os.path.join(v.home, "webserver", "core", "lib"),
             "-I", rdir, "-I", os.path.join(v.src, "c_shims", "include"), "-I", work,
-            "-include", "mbfb.h", "-include", "scale_pub.h", "-o", exe, "Config0.c", "Res0.c", "glue.c",
+            "-include", v.pragma_header, "-include", "scale_pub.h", "-o", exe, "Config0.c", "Res0.c", "glue.c",
             "scale_pub.cpp"] + [os.path.join(rdir, f) for f in RUNNER_SRC]
            + [v.lib, v.lm, "-lpthread", f"-Wl,-rpath,{os.path.dirname(v.lm)}"], cwd=work)
     return exe

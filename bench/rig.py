@@ -109,6 +109,10 @@ class Variant:
         self.ptyline = os.path.join(self.build, "tools", "sim", "ptyline", "mbfb-ptyline")
         self.header = open(os.path.join(self.src, "c_shims", "include", "mbfb.h"), encoding="utf-8").read()
         self.has_plans = "mbfb_plan_take" in self.header
+        # the header a program's pragmas need: mbfb_st.h (the API and the pragmas' macros) where
+        # the variant has one, else mbfb.h (older trees held the macros there)
+        self.pragma_header = ("mbfb_st.h" if os.path.exists(os.path.join(self.src, "c_shims", "include", "mbfb_st.h"))
+                              else "mbfb.h")
         self.shims = os.path.join(self.dir, "wp_shims")
         run(["gcc", "-O2", "-I", os.path.join(self.src, "c_shims", "include"), "-o", self.shims,
              os.path.join(HERE, "wp_shims.c"), self.lib, self.lm, "-lpthread",
@@ -129,7 +133,7 @@ class Variant:
         exe = os.path.join(work, "prog")
         run(["g++", "-std=gnu++11", "-O0", "-w", "-I", os.path.join(self.home, "webserver", "core", "lib"),
              "-I", os.path.join(self.src, "c_shims", "include"), "-I", HERE, "-I", work,
-             "-include", "mbfb.h", "-include", "wp_host.h", "-o", exe, "Config0.c", "Res0.c",
+             "-include", self.pragma_header, "-include", "wp_host.h", "-o", exe, "Config0.c", "Res0.c",
              os.path.join(HERE, "wp_host.cpp"), self.lib, self.lm, "-lpthread",
              f"-Wl,-rpath,{os.path.dirname(self.lm)}"], cwd=work)
         self.programs[key] = exe

@@ -2,7 +2,7 @@
 #
 # Our only edits to files OpenPLC owns are marker-delimited blocks:
 #   webserver/lib/standard_FB.txt  a block after "{enable code generation}" including mbfb.txt
-#   webserver/core/c_blocks.h      a block at the end including mbfb.h
+#   webserver/core/c_blocks.h      a block at the end including mbfb_st.h
 # Every other file we add is listed in webserver/lib/mbfb.manifest, all named mbfb*.
 
 die() { echo "$prog: $*" >&2; exit 1; }

@@ -75,13 +75,13 @@ strip_block "$f" | awk -v b="$MARK_BEGIN" -v e="$MARK_END" '
         print "(* " b " *)"; print "{#include \"mbfb.txt\" }"; print "(* " e " *)"; done = 1 }' > "$tmp/std"
 if replace_if_changed "$f" "$tmp/std"; then changed=1; fi
 
-# c_blocks.h (included at the end of iec_std_FB.h by every program): declare the shims for the
-# blocks' pragmas.
+# c_blocks.h (included at the end of iec_std_FB.h by every program): declare the shims and the
+# pragmas' macros (mbfb_st.h, which includes mbfb.h) for the blocks' pragmas.
 f=$oplc/webserver/core/c_blocks.h
 strip_block "$f" > "$tmp/cb"
 eol=
 if [ -s "$tmp/cb" ] && [ -n "$(tail -c1 "$tmp/cb")" ]; then eol=' [eol]'; echo >> "$tmp/cb"; fi
-printf '/* %s%s */\n#include "mbfb.h"\n/* %s */\n' "$MARK_BEGIN" "$eol" "$MARK_END" >> "$tmp/cb"
+printf '/* %s%s */\n#include "mbfb_st.h"\n/* %s */\n' "$MARK_BEGIN" "$eol" "$MARK_END" >> "$tmp/cb"
 if replace_if_changed "$f" "$tmp/cb"; then changed=1; fi
 
 if [ $changed = 1 ]; then say "installed into $oplc"; else say "already installed in $oplc (nothing changed)"; fi

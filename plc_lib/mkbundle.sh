@@ -7,7 +7,7 @@
 #   PROGRAM.st;
 #   (*FILE:path line*) lines: OpenPLC's upload (webserver/openplc.py compile_program) writes each
 #     into core/<path>: the shims (mbfb*.h, mbfb_*.cpp); core/c_blocks.h as install.sh writes it
-#     into a fresh OpenPLC (OpenPLC's own line, then our marker block including mbfb.h); and
+#     into a fresh OpenPLC (OpenPLC's own line, then our marker block including mbfb_st.h); and
 #     core/mbfb_bundle.sha256, the sha256 of each file as the upload writes it (sha256sum -c
 #     format): install.sh and uninstall.sh take over the files that still match;
 #   (*DBG:...*) lines, only if PROGRAM.st has none: an empty debugger table (debug_stub.cpp).
@@ -51,7 +51,7 @@ echo
 grep '^webserver/core/' "$dist/MANIFEST" | while read -r f; do
     file_lines "$(basename "$f")" "$dist/$f"
 done
-printf '%s\n/* %s */\n#include "mbfb.h"\n/* %s */\n' "$OPENPLC_C_BLOCKS" "$MARK_BEGIN" "$MARK_END" > "$tmp/cb"
+printf '%s\n/* %s */\n#include "mbfb_st.h"\n/* %s */\n' "$OPENPLC_C_BLOCKS" "$MARK_BEGIN" "$MARK_END" > "$tmp/cb"
 file_lines c_blocks.h "$tmp/cb"
 awk '{ print "(*FILE:" n " " $0 "*)" }' n="${BUNDLE_SUMS#webserver/core/}" "$tmp/sums"
 if ! grep -q '^(\*DBG:' "$1"; then

@@ -12,7 +12,7 @@
 # Res0.c). The standard libraries instead sit under "{disable code generation}" with hand-written
 # C in iec_std_FB.h; that route fails for us: matiec still emits every library TYPE into the
 # program's POUS.h, which would then clash with the same types in a header (tested: "conflicting
-# declaration"). core/c_blocks.h only gains #include "mbfb.h" for the pragmas' shim calls.
+# declaration"). core/c_blocks.h only gains #include "mbfb_st.h" for the pragmas' shim calls and macros.
 #
 # Environment (defaults in brackets):
 #   IEC2C         matiec compiler (check only)         [$OPENPLC_HOME/webserver/iec2c, else iec2c on PATH]
@@ -42,7 +42,7 @@ shim_inc=${MBFB_SHIM_INC:-$root/c_shims/include}
 st=${MBFB_ST:-$(ls "$root"/st_src/*.st 2>/dev/null | sort | tr '\n' ' ')}
 [ -n "$st" ] || die "no ST sources (st_src/*.st)"
 for f in $st; do [ -f "$f" ] || die "missing ST source $f"; done
-[ -f "$shim_inc/mbfb.h" ] || die "missing $shim_inc/mbfb.h"
+for h in mbfb.h mbfb_st.h; do [ -f "$shim_inc/$h" ] || die "missing $shim_inc/$h"; done
 ls "$shim_src"/mbfb*.c >/dev/null 2>&1 || die "no shim sources $shim_src/mbfb*.c"
 
 tmp=$(mktemp -d)
@@ -67,7 +67,7 @@ mkdir -p "$lib" "$core" "$tmp/iec"
 rm -rf "$tmp/iec"
 
 # 3. The shims as OpenPLC core sources (its link step compiles core/*.cpp with g++).
-cp "$shim_inc/mbfb.h" "$core/"
+cp "$shim_inc/mbfb.h" "$shim_inc/mbfb_st.h" "$core/"
 for f in "$shim_src"/*.h; do [ -f "$f" ] && cp "$f" "$core/"; done
 for f in "$shim_src"/*.c; do
     b=$(basename "$f" .c)

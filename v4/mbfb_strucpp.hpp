@@ -19,14 +19,12 @@
 #include "iec_string.hpp"
 #include "iec_array.hpp"
 #include "iec_std_lib.hpp"
-#include "mbfb.h"
 
-/* A TIME in a pragma is STruC++'s integer (mbfb.h's MBFB_TIME_EQ and MBFB_TIME_SUB work on
-   matiec's {tv_sec, tv_nsec}). */
-#undef MBFB_TIME_EQ
+/* A TIME in a pragma is STruC++'s integer: the pragmas' TIME macros for it, defined before
+   mbfb_st.h (whose own work on matiec's {tv_sec, tv_nsec}). */
 #define MBFB_TIME_EQ(a, b) ((a) == (b))
-#undef MBFB_TIME_SUB
 #define MBFB_TIME_SUB(res, a, b) ((res) = (a) - (b))
+#include "mbfb_st.h"
 
 namespace mbfb_v4 {
 

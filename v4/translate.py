@@ -211,7 +211,7 @@ def mirror_code(names, vartypes, structs):
             die(f"{n} : {t} names one of its own fields (the C mirror's member would hide it)")
         ctype, into, out = mirror(n, f"{n}__c", t, structs)
         decl.append(f"{ctype} {n}__c;")
-        if t in structs:   # zeroed first: a mirror's padding is compared too (mbfb.h, MBFB_SETTINGS_SAME's memcmp of Line)
+        if t in structs:   # zeroed first: a mirror's padding is compared too (mbfb_st.h, MBFB_SETTINGS_SAME's memcmp of Line)
             decl.append(f"std::memset(&{n}__c, 0, sizeof {n}__c);")
         decl += into
         back += out

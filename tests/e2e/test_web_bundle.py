@@ -56,7 +56,7 @@ def test_bundle_then_install_then_uninstall(scratch, dist, tmp_path):
         subprocess.run([os.path.join(oplc.ROOT, "plc_lib", "mkbundle.sh"), "--dist", dist, EXAMPLE],
                        stdout=f, check=True)
     text = bundle.read_text()
-    assert "(*FILE:mbfb.h " in text and "(*FILE:mbfb_bundle.sha256 " in text and "(*DBG:" in text
+    assert "(*FILE:mbfb.h " in text and "(*FILE:mbfb_st.h " in text and "(*FILE:mbfb_bundle.sha256 " in text and "(*DBG:" in text
     upload_through_handler(scratch, bundle, "bundle.st")
 
     # What the handler wrote: every shim, c_blocks.h as install.sh writes it into a fresh
@@ -67,7 +67,7 @@ def test_bundle_then_install_then_uninstall(scratch, dist, tmp_path):
     for s in shims:
         assert os.path.exists(os.path.join(root, s)), f"upload did not write {s}"
     cb = open(os.path.join(root, C_BLOCKS)).read()
-    assert cb.startswith("// Empty file\n/* mbfb BEGIN") and cb.endswith('#include "mbfb.h"\n/* mbfb END */')
+    assert cb.startswith("// Empty file\n/* mbfb BEGIN") and cb.endswith('#include "mbfb_st.h"\n/* mbfb END */')
     r = subprocess.run(["sha256sum", "-c", "--quiet", SUMS], cwd=root, capture_output=True, text=True)
     assert r.returncode == 0, r.stdout + r.stderr
     assert len(open(os.path.join(root, SUMS)).read().splitlines()) == len(shims) + 1

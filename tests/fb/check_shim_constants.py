@@ -5,8 +5,9 @@
 
 A `VAR CONSTANT` entry named SHIM_<X> must equal `#define MBFB_<X>`, one named MB_E_<X> or E_<X>
 must equal `#define MBFB_E_<X>`; so must the fields of the shared constant structures of
-MB_Types.st: MB_FUNCTION_CODES.<X> = MBFB_FC_<X>, MB_ERROR_IDS.<X> = MBFB_E_<X> (both must be
-there). A VAR CONSTANT entry named after one of their fields (MB_FC_<X>, E_<X>) fails: those
+MB_Types.st: MB_FUNCTION_CODES.<X> = MBFB_FC_<X>, MB_ERROR_IDS.<X> = MBFB_E_<X>,
+MB_SHIM_CODES.<X> = MBFB_<X> (all must be there). A VAR CONSTANT entry named after one of their
+fields (MB_FC_<X>, E_<X>, SHIM_<X>) fails: those
 are declared once, in the structure. An entry with such a name and no #define of that name fails too
 (a constant renamed on one side only), and so does finding none at all. The matiec and STruC++
 C code holds an ST constant as a variable set when the block starts, so the C compiler cannot
@@ -27,7 +28,8 @@ DEFINE = re.compile(r"^#define\s+(MBFB_\w+)\s+(-?\d+)\b", re.M)
 TYPE_BLOCK = re.compile(r"\bTYPE\b(.*?)\bEND_TYPE\b", re.S)
 STRUCT = re.compile(r"\b(\w+)\s*:\s*STRUCT\b(.*?)\bEND_STRUCT\b", re.S)
 FIELD = re.compile(r"\b(\w+)\s*:\s*\w+\s*:=\s*([^;]+);")
-SHARED = {"MB_FUNCTION_CODES": ("MBFB_FC_", "MB_FC_"), "MB_ERROR_IDS": ("MBFB_E_", "E_")}
+SHARED = {"MB_FUNCTION_CODES": ("MBFB_FC_", "MB_FC_"), "MB_ERROR_IDS": ("MBFB_E_", "E_"),
+          "MB_SHIM_CODES": ("MBFB_", "SHIM_")}
 
 
 def st_int(text):

@@ -4,7 +4,7 @@
 # host library targets and mbfb_set_rpath(<target> <flavour>).
 # mbfb_st_program(<target> <dir> [SHARED] [HOST <library>] [INCLUDE <header>] <st files...>):
 # the ST files (concatenated in order) compiled by iec2c in <dir>, glued (mkglue.py), compiled
-# as MBFB_PROGRAM_LANG with mbfb.h (and <header>) force-included, and linked with the host
+# as MBFB_PROGRAM_LANG with mbfb_st.h (the shims and the pragmas' macros; and <header>) force-included, and linked with the host
 # (default: the runner's) into <target>: an executable, or with SHARED a shared object (a
 # program a host dlopens, compiled with -fno-gnu-unique as Runtime v4's programs are, so that
 # dlclose unmaps it). (A CMake function is global: tests/fb calls it too.)
@@ -14,7 +14,7 @@ function(mbfb_st_program target dir)
   if(_arg_HOST)
     set(_host ${_arg_HOST})
   endif()
-  set(_incl "SHELL:-include mbfb.h")
+  set(_incl "SHELL:-include mbfb_st.h")
   if(_arg_INCLUDE)   # a path, or a name on the host library's include path
     list(APPEND _incl "SHELL:-include ${_arg_INCLUDE}")
   endif()

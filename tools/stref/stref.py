@@ -33,6 +33,7 @@ ENTRY = re.compile(r"^\s*(\w+)\s*:\s*([^;:=]+?)\s*(?::=\s*(.+?))?\s*;\s*(?:\(\*(
 CONST = re.compile(r"(\w+)\s*:\s*\w+\s*:=\s*([^;]+);\s*(?:\(\*(.*?)\*\))?")
 LEAD_COMMENT = re.compile(r"\A\s*\(\*(.*?)\*\)", re.S)
 SHARED_IDS = "MB_ERROR_IDS"     # the shared error ids: a STRUCT type with initialised fields
+SHIM_CODES = "MB_SHIM_CODES"    # the shims' codes the blocks test: its E_* fields are remapped
 STRUCT = re.compile(r"\b(\w+)\s*:\s*STRUCT\b(.*?)\bEND_STRUCT\b", re.S)
 INSTANCE = re.compile(r"(\w+)\s*:\s*(\w+)\s*;")
 SHIM_DEFINE = re.compile(r"^#define\s+MBFB_E_(\w+)\s+(\d+)[ \t]*(?:/\*(.*?)\*/)?", re.M | re.S)
@@ -63,6 +64,7 @@ def parse_pous(paths):
     """{name: dict(kind, file, doc, inputs, outputs, errors, uses)} for every POU."""
     pous = {}
     shared = {}                   # field of MB_ERROR_IDS -> its id
+    shim = {}                     # E_* field of MB_SHIM_CODES -> its code
     sources = []
     for path in paths:
         with open(path, encoding="utf-8") as fh:
@@ -70,6 +72,9 @@ def parse_pous(paths):
         for st in STRUCT.finditer(re.sub(r"\(\*.*?\*\)", " ", sources[-1][1], flags=re.S)):
             if st.group(1) == SHARED_IDS:
                 shared.update((c.group(1), st_int(c.group(2))) for c in CONST.finditer(st.group(2)))
+            elif st.group(1) == SHIM_CODES:
+                shim.update((c.group(1), st_int(c.group(2))) for c in CONST.finditer(st.group(2))
+                            if c.group(1).startswith("E_"))
     for path, src in sources:
         last_end = 0
         for m in POU.finditer(src):
@@ -85,6 +90,9 @@ def parse_pous(paths):
                 which = " ".join(sec.group(1).split())
                 text = sec.group(2)
                 for i in INSTANCE.finditer(text if which in ("VAR", "VAR CONSTANT") else ""):
+                    if i.group(2) == SHIM_CODES:   # a shim code the block reports as another
+                        pou["remapped"] |= {shim[f.group(1)] for f in
+                                            re.finditer(rf"\b{i.group(1)}\.(\w+)", body) if f.group(1) in shim}
                     if i.group(2) != SHARED_IDS:
                         continue
                     for f in re.finditer(rf"\b{i.group(1)}\.(\w+)", body):
