@@ -11,11 +11,11 @@
  *   request one Modbus transaction posted by a block; lives in a preallocated slot.
  *
  * Scan-side calls (mbfb_post, mbfb_post_write, mbfb_post_chain, mbfb_chain_held, mbfb_poll,
- * mbfb_take, mbfb_cancel, mbfb_plan_set/_stop/_invalidate/_take, mbfb_dev_diag,
+ * mbfb_take, mbfb_cancel, mbfb_plan_set/_stop/_invalidate/_trigger/_take, mbfb_dev_diag,
  * mbfb_dev_diag_seq, mbfb_bus_diag, mbfb_strerror) never block and never allocate; the only
  * system call they make is a write() to the bus's eventfd in mbfb_post, mbfb_post_write,
- * mbfb_post_chain and mbfb_plan_set, to wake the worker, and only when it is waiting (none
- * while it is busy),
+ * mbfb_post_chain, mbfb_plan_set and mbfb_plan_trigger, to wake the worker, and only when it
+ * is waiting (none while it is busy),
  * and in the mbfb_plan_take that gets a parked plan's snapshot once the PLC scans again
  * after a stop (README "Lifetime").
  * Setup calls (mbfb_bus_open, mbfb_dev_open) may allocate and start the worker;
@@ -97,10 +97,11 @@ extern "C" {
                                      an MT-S9 set-up register above the Author level    */
 #define MBFB_E_NOT_READY     205 /* the limits/scaling the check needs are not known, or
                                      stale (no valid refresh yet)                       */
-#define MBFB_E_BAD_REQUEST   206 /* register request invalid: a command's mbfb_post refused
-                                     with MBFB_E_INVAL (function not 3/4/6/16, count 0 or
-                                     above 125 (read) / 123 (FC16), address + count above
-                                     65536, a read from slave 0)                        */
+#define MBFB_E_BAD_REQUEST   206 /* request invalid: a command's mbfb_post refused with
+                                     MBFB_E_INVAL (function not 1/2/3/4/5/6/15/16, count 0
+                                     or above 125 registers / 2000 bits (read), 123 (FC16)
+                                     / 1968 (FC15), address + count above 65536, a read
+                                     from slave 0)                                      */
 #define MBFB_E_BAD_LINE      207 /* line settings invalid: mbfb_bus_open refused them with
                                      MBFB_E_INVAL or MBFB_E_BAUD (unknown Parity, Framing or
                                      Direction, TCP framing on a serial port, ASCII/NOCRC on
@@ -111,6 +112,14 @@ extern "C" {
 #define MBFB_E_NOT_ENABLED   208 /* command on a device block whose Enable is FALSE     */
 #define MBFB_E_NOT_HELD      209 /* a settings download's read-back shows another word
                                      than the one written (a chain entry: mbfb_post_chain) */
+#define MBFB_E_BAD_PLAN      210 /* a block's ranges refused by mbfb_plan_set (MBFB_E_INVAL):
+                                     a function not 1/2/3/4, a Count 0 or negative, above
+                                     125 registers or 2000 bits, address + count above
+                                     65536, or the ranges together above 125 words (bits
+                                     packed 16 to a word); MB_Poll                      */
+#define MBFB_E_OVERLAP       211 /* two ranges of the same function overlap on the device
+                                     (MB_Poll)                                          */
+#define MBFB_E_NO_RANGE      212 /* no range to read: every Fc is 0 (MB_Poll)             */
 
 /* ---- RS-485 direction control (README "Direction control") ------------------
  * A half-duplex transceiver (MAX485 and the like) must drive the line while the master
@@ -186,22 +195,45 @@ int mbfb_dev_check(int framing, int slave);
 
 /* The Modbus functions a request or plan item carries (fc of mbfb_post, mbfb_post_write,
  * mbfb_plan_item_t); the ST blocks' MB_FUNCTION_CODES mirrors them. */
+#define MBFB_FC_READ_COILS      1 /* bits, read/write on the device                     */
+#define MBFB_FC_READ_DISCRETE   2 /* discrete inputs: bits, read-only                   */
 #define MBFB_FC_READ_HOLDING    3
 #define MBFB_FC_READ_INPUT      4
+#define MBFB_FC_WRITE_COIL      5 /* one coil: ON is FF 00 on the wire, OFF 00 00        */
 #define MBFB_FC_WRITE_SINGLE    6
+#define MBFB_FC_WRITE_COILS    15
 #define MBFB_FC_WRITE_MULTIPLE 16
 
+/* Protocol limits per request (Modbus application protocol 1.1b3, 6.1 - 6.12), named once. */
+#define MBFB_MAX_READ         125 /* FC03/FC04 registers                                 */
+#define MBFB_MAX_WRITE        123 /* FC16 registers                                      */
+#define MBFB_MAX_READ_BITS   2000 /* FC01/FC02 coils or inputs                           */
+#define MBFB_MAX_WRITE_BITS  1968 /* FC15 coils                                          */
+
+/* Bits are carried packed into words wherever this API carries them (values of mbfb_post,
+ * mbfb_take, a plan snapshot's words): bit i of a range is bit (i % 16) of word (i / 16),
+ * least significant first, as on the wire. A range of n bits fills MBFB_BIT_WORDS(n) words;
+ * the bits past n in the last word are 0 in what the shims return and ignored in what they
+ * are given. */
+#define MBFB_BIT_WORDS(n) (((n) + 15) / 16)
+
 /** Post a transaction. fc: 3, 4 (read `count` registers from `addr`), 6 (write values[0]
- *  to `addr`, count 1), 16 (write `count` values from `addr`). Values are copied.
- *  Returns a request handle > 0, or a negative error; nothing is sent on error. */
+ *  to `addr`, count 1), 16 (write `count` values from `addr`); 1, 2 (read `count` bits,
+ *  1..MBFB_MAX_READ_BITS, coils or discrete inputs), 5 (write one coil: ON when values[0]
+ *  != 0, count 1), 15 (write `count` coils, 1..MBFB_MAX_WRITE_BITS, packed in values as
+ *  MBFB_BIT_WORDS says). Values are copied. Returns a request handle > 0, or a negative
+ *  error; nothing is sent on error (-MBFB_E_INVAL: function, count, address range, a read
+ *  from slave 0). */
 int mbfb_post(int dev, int fc, int addr, int count, const uint16_t *values);
 
 /** State of a request: MBFB_REQ_QUEUED/ACTIVE/DONE/FAILED, or -MBFB_E_BADHANDLE. */
 int mbfb_poll(int req);
 
-/** Collect a finished request and free its slot. Copies up to `max` registers read into
- *  `values` (may be NULL for writes). Returns the number of registers copied (>= 0) when
- *  it succeeded, or the negative error it failed with (e.g. -(128+2) for exception 2).
+/** Collect a finished request and free its slot. Copies up to `max` words read into
+ *  `values` (may be NULL for writes): registers, or for FC01/02 the bits packed
+ *  (MBFB_BIT_WORDS(count) words). Returns, when it succeeded, the number of registers
+ *  copied, or for FC01/02 the number of bits copied (count when max holds them all), >= 0;
+ *  else the negative error it failed with (e.g. -(128+2) for exception 2).
  *  Returns -MBFB_E_BADHANDLE if the request is unknown or not finished yet. */
 int mbfb_take(int req, uint16_t *values, int max);
 
@@ -212,16 +244,17 @@ int mbfb_cancel(int req);
 /* ---- confirmed writes -------------------------------------------------------
  * A write is DONE only when the device is known to hold it: a correct echo to a request
  * no earlier request's late reply can match (the device is "in step", see README), or,
- * when the outcome is unknown (no valid echo), a read-back with FC03 of the written
- * registers once the device is in step again. Never sent again while it may have been
- * applied. */
+ * when the outcome is unknown (no valid echo), a read-back once the device is in step
+ * again: FC03 of the written registers (FC06/16), FC01 of the written coils (FC05/15).
+ * Never sent again while it may have been applied. */
 #define MBFB_WRITE_IDEMPOTENT 0 /* absolute value (set points): read-back differs -> the
                                    write was not applied -> sent again (retries allow)    */
 #define MBFB_WRITE_ONCE       1 /* command / counter preset: read-back shows it -> DONE;
                                    else MBFB_E_UNCONFIRMED, never sent twice              */
 
-/** Post a write (fc 6 or 16) with a confirmation policy (MBFB_WRITE_*). mbfb_post's writes
- *  are MBFB_WRITE_IDEMPOTENT. Returns a request handle > 0 or a negative error. */
+/** Post a write (fc 5, 6, 15 or 16, arguments as mbfb_post) with a confirmation policy
+ *  (MBFB_WRITE_*). mbfb_post's writes are MBFB_WRITE_IDEMPOTENT. Returns a request handle
+ *  > 0 or a negative error. */
 int mbfb_post_write(int dev, int fc, int addr, int count, const uint16_t *values, int policy);
 
 /* ---- chains: settings written in order, each confirmed and read back -------------
@@ -251,8 +284,9 @@ int mbfb_chain_held(int req);
 /* ---- refresh plans: a device's whole refresh, run by the worker ----------------
  * A plan is the list of reads that make one refresh of a device. The worker runs a
  * plan's reads back to back at the wire's pace, every period (0 = as often as the line
- * allows, shared fairly with the bus's other plans), and publishes each finished refresh
- * as one snapshot. Posted requests (writes) go before the next read of any plan.
+ * allows, shared fairly with the bus's other plans; MBFB_PERIOD_ON_DEMAND = only when
+ * triggered, mbfb_plan_trigger), and publishes each finished refresh as one snapshot.
+ * Posted requests (writes) go before the next read of any plan.
  * Scan side: mbfb_plan_take costs one atomic load when nothing is new; no system call,
  * no lock, no allocation. mbfb_plan_set / _stop / _invalidate are scan-safe too. A plan
  * whose snapshot stays untaken for 10 periods (its own or its block's scan interval, at
@@ -263,19 +297,24 @@ int mbfb_chain_held(int req);
  * (the block that opened the plan); other plans, devices and buses are independent. */
 #define MBFB_PLAN_MAX_ITEMS 4   /* reads per refresh                                   */
 #define MBFB_PLAN_MAX_WORDS 125 /* all items' words together (one IEC MB_REGS)         */
+#define MBFB_PERIOD_ON_DEMAND (-1) /* period_ms of mbfb_plan_set: a refresh when set and
+                                   then only when triggered (mbfb_plan_trigger)        */
 #define MBFB_TIER_EVERY 0       /* read in every refresh                               */
 #define MBFB_TIER_SLOW  1       /* read when the slow tier is due: every slow period,
                                    in the first refresh, and after mbfb_plan_invalidate */
 #define MBFB_TIER_FAST  2       /* read only in refreshes without the slow tier        */
 
 typedef struct mbfb_plan_item {
-    int fc;     /* 3 or 4 */
+    int fc;     /* 3, 4 (registers) or 1, 2 (coils, discrete inputs)                 */
     int addr;
-    int count;  /* 1..125; all items together at most MBFB_PLAN_MAX_WORDS */
+    int count;  /* registers 1..MBFB_MAX_READ, or bits 1..MBFB_MAX_READ_BITS filling
+                   MBFB_BIT_WORDS(count) words; all items' words together at most
+                   MBFB_PLAN_MAX_WORDS                                               */
     int tier;   /* MBFB_TIER_* */
 } mbfb_plan_item_t;
 
-/** One finished refresh. words[] holds item i at offset sum(count of items < i); an
+/** One finished refresh. words[] holds item i at offset sum(words of items < i), where an
+ *  item of registers has `count` words and one of bits MBFB_BIT_WORDS(count), packed; an
  *  item not read in this refresh (read_mask bit clear) has its words zeroed. */
 typedef struct mbfb_snap {
     uint32_t seq;        /* refresh number, 1, 2, ... (0: none yet)                     */
@@ -294,13 +333,22 @@ int mbfb_plan_open(int dev);
 
 /** Set a plan's reads, its period and slow period (ms) and start it (again); the slow tier
  *  is due in the first refresh under them (its generation moves, as with
- *  mbfb_plan_invalidate). A refresh on the wire finishes under the old settings. Returns 0 or -MBFB_E_INVAL (bad item, too
- *  many words), -MBFB_E_BADHANDLE. */
+ *  mbfb_plan_invalidate). period_ms >= 0, or MBFB_PERIOD_ON_DEMAND: one refresh now, then
+ *  one per mbfb_plan_trigger (the lifetime rule then counts the block's scan interval).
+ *  A refresh on the wire finishes under the old settings. Returns 0 or -MBFB_E_INVAL (bad
+ *  item, too many words, bad period), -MBFB_E_BADHANDLE. */
 int mbfb_plan_set(int plan, const mbfb_plan_item_t *items, int n, int period_ms,
                   int slow_period_ms);
 
 /** Stop a plan: no refresh starts after this call (Enable FALSE). 0 or an error. */
 int mbfb_plan_stop(int plan);
+
+/** Make the plan's next refresh due now: one refresh starts as soon as the line allows
+ *  (the device's back-off and the port's reopening still hold it back), whether or not its
+ *  period has elapsed, and a snapshot from after this call follows. Triggers before that
+ *  refresh starts make one. Scan-safe (wakes the worker as mbfb_plan_set does). 0, or
+ *  -MBFB_E_BADHANDLE. */
+int mbfb_plan_trigger(int plan);
 
 /** Make the slow tier due in the next refresh that starts after this call (after a
  *  command, a scaling change). Returns the new generation (compare with mbfb_snap.gen),

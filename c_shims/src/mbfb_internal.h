@@ -19,9 +19,8 @@
 extern "C" {
 #endif
 
-/* ---- protocol limits (Modbus application protocol 1.1b3, 6.3 / 6.12) ---------- */
-#define MBFB_MAX_READ      125  /* FC03/FC04 registers per request                */
-#define MBFB_MAX_WRITE     123  /* FC16 registers per request                     */
+/* ---- protocol limits (Modbus application protocol 1.1b3, 6.3 / 6.12; the per-request
+ * counts are public: MBFB_MAX_READ, MBFB_MAX_WRITE, MBFB_MAX_READ_BITS, _WRITE_BITS) ---- */
 #define MBFB_FRAME_MAX     256  /* slave + PDU (253) + 2 check bytes              */
 #define MBFB_MAX_SLAVE     247  /* serial addresses 1..247, 0 = broadcast         */
 #define MBFB_MAX_BAUD      4000000 /* the fastest rate a Linux UART driver offers    */
