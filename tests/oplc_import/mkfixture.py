@@ -34,6 +34,12 @@ PLANTS = {
         ("vfd", "TCP", 7, "", 0, "", 0, 0, "127.0.0.1", 5021,
          0, 0, 0, 0, 0, 0, 8192, 3, 8192, 2, 0),
     ],
+    "line": [               # test_oplc_line.py: the converted program against the simulator
+        ("relays", "RTU", 2, "/dev/ttyUSB0", 9600, "None", 8, 2, "", 0,
+         0, 8, 0, 4, 0, 0, 0, 0, 0, 0, 0),
+        ("meter", "RTU", 5, "/dev/ttyUSB0", 9600, "None", 8, 2, "", 0,
+         0, 0, 0, 0, 0, 8, 20, 4, 10, 2, 0),
+    ],
     "com_port": [           # a Windows port name, as the page offers it: COM3 -> /dev/ttyS2
         ("uno", "Uno", 0 + 1, "COM3", 115200, "Even", 8, 1, "", 0,
          0, 5, 0, 4, 0, 6, 0, 0, 0, 3, 0),
