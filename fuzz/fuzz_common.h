@@ -38,7 +38,8 @@ static inline int fz_u16(fz_t *f)
 }
 
 /* A request the shims accept, from 7 header bytes:
- *   slave, fc selector (3/4/6/16), address (2), count, first value (2); value i = v0 + i.
+ *   slave, fc selector (3/4/6/16/1/2/5/15: its low 3 bits), address (2), count (registers
+ *   or bits), first value (2); value i = v0 + i (FC15: coils packed in those words).
  * Returns the request frame's length (slave + PDU) in req, or 0 if the shims would refuse
  * the arguments (then nothing is sent and there is no reply to parse). */
 typedef struct fz_req {
@@ -48,14 +49,14 @@ typedef struct fz_req {
 
 static inline int fz_request(fz_t *f, fz_req_t *r, uint8_t *req)
 {
-    static const int fcs[4] = {3, 4, 6, 16};
+    static const int fcs[8] = {3, 4, 6, 16, 1, 2, 5, 15};
     int v0;
     r->slave = fz_u8(f);
-    r->fc = fcs[fz_u8(f) & 3];
+    r->fc = fcs[fz_u8(f) & 7];
     r->addr = fz_u16(f);
     r->count = fz_u8(f);
     v0 = fz_u16(f);
-    if (r->fc == 6)
+    if (r->fc == 6 || r->fc == 5)
         r->count = 1;
     if (r->count < 1)
         r->count = 1;

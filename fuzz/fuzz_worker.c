@@ -12,7 +12,8 @@
  *   type%5 == 3  silence
  *   type%5 == 4  late:     delay*4 ms (up to ~1 s), then the correct reply
  * Invariants: every posted request finishes (bounded time), ends with a result of the one
- * error table, a good read returns exactly its count of registers, and scan-side calls
+ * error table, a good read returns exactly its count of registers (bits: FC01/02), and
+ * scan-side calls
  * never crash on stale handles. ASan/UBSan watch the worker thread too.
  */
 
@@ -60,14 +61,14 @@ static int good_reply(const uint8_t *q, int qlen, uint8_t *out)
     if (qlen < 6 || q[0] == 0)
         return 0;
     memcpy(out, q, 6);
-    if (q[1] == 3 || q[1] == 4) {
+    if (q[1] >= 1 && q[1] <= 4) { /* reads: registers, or bits (ceil(n / 8) bytes) */
         int n = (q[4] << 8 | q[5]) & 0xFF;
         if (n > 125)
             n = 125;
-        out[2] = (uint8_t)(2 * n);
-        for (int i = 0; i < 2 * n; i++)
+        out[2] = (uint8_t)(q[1] <= 2 ? (n + 7) / 8 : 2 * n);
+        for (int i = 0; i < out[2]; i++)
             out[3 + i] = (uint8_t)(q[3] + i);
-        return 3 + 2 * n;
+        return 3 + out[2];
     }
     return 6;
 }
@@ -167,7 +168,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
         FZ_ASSERT(devs[slave] >= 0);
         counts[i] = r.count;
         fcs[i] = r.fc;
-        if (r.fc == 3 || r.fc == 4)
+        if (r.fc >= 1 && r.fc <= 4)
             handles[i] = mbfb_post(devs[slave], r.fc, r.addr, r.count, r.values);
         else if (mbfb_post_write != NULL) /* shims with confirmed writes */
             handles[i] = mbfb_post_write(devs[slave], r.fc, r.addr, r.count, r.values, policy);
@@ -246,7 +247,7 @@ int LLVMFuzzerTestOneInput(const uint8_t *data, size_t size)
             continue;
         rc = mbfb_take(handles[i], vals, MBFB_MAX_READ);
         if (rc >= 0)
-            FZ_ASSERT(rc == ((fcs[i] == 3 || fcs[i] == 4) ? counts[i] : 0));
+            FZ_ASSERT(rc == ((fcs[i] >= 1 && fcs[i] <= 4) ? counts[i] : 0)); /* regs or bits */
         else
             FZ_ASSERT(fz_known_result(-rc) && rc != -MBFB_E_BADHANDLE);
         FZ_ASSERT(mbfb_take(handles[i], vals, MBFB_MAX_READ) == -MBFB_E_BADHANDLE);

@@ -10,7 +10,7 @@ import sys
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.join(os.path.dirname(HERE), "tools", "sim"))
 from modsim.frames import crc_bytes, lrc  # noqa: E402  (pymodbus's CRC-16 and LRC)
-FC_SEL = {3: 0, 4: 1, 6: 2, 16: 3}
+FC_SEL = {3: 0, 4: 1, 6: 2, 16: 3, 1: 4, 2: 5, 5: 6, 15: 7}
 
 # (request frame, reply frame) as printed or derived in the manuals, without check bytes:
 # the SetPro MV/VD, MT-S9 and FDC-100 manuals, whose worked frames maps/*.json keep byte for
@@ -27,6 +27,13 @@ PAIRS = [
     ("01 03 00 80 00 04", "01 03 08 03 E8 05 DC 00 00 00 00"),   # FDC PV..MV2
     ("01 06 00 48 68 25", "01 06 00 48 68 25"),          # FDC CMND reset
     ("01 06 00 48 68 28", "01 86 03"),                   # FDC exception 03
+    # coils and discrete inputs: the Modbus application protocol's examples (6.1, 6.2,
+    # 6.5, 6.11), on slave 0x11 as the RTU examples print them
+    ("11 01 00 13 00 25", "11 01 05 CD 6B B2 0E 1B"),    # read 37 coils
+    ("11 02 00 C4 00 16", "11 02 03 AC DB 35"),          # read 22 discrete inputs
+    ("11 05 00 AC FF 00", "11 05 00 AC FF 00"),          # coil 173 ON
+    ("11 0F 00 13 00 0A 02 CD 01", "11 0F 00 13 00 0A"), # write 10 coils
+    ("11 01 00 13 00 25", "11 81 02"),                   # exception 02
 ]
 
 
@@ -47,10 +54,10 @@ def header(req):
     """The 7-byte request header of fuzz_common.h for a request frame."""
     slave, fc = req[0], req[1]
     addr = req[2:4]
-    if fc == 6:
+    if fc in (5, 6):
         return bytes([slave, FC_SEL[fc]]) + addr + bytes([1]) + req[4:6]
     count = req[5]
-    v0 = req[7:9] if fc == 16 else b"\0\0"
+    v0 = req[7:9] if fc == 16 else req[8:6:-1] if fc == 15 else b"\0\0"  # FC15: LSB first
     return bytes([slave, FC_SEL[fc]]) + addr + bytes([count]) + v0
 
 
@@ -87,6 +94,14 @@ def main():
     write("fuzz_worker", "late_write", bytes([0, 2, 0]) + bytes([0x81]) + h_w[1:] +
           bytes([4, 10, 1, 0, 1, 0]))
     write("fuzz_worker", "ascii_two", bytes([1, 1, 1]) + h_sv + h_pv + bytes([1, 0, 1, 0]))
+    # bits: coils and inputs read, 10 coils written, good answers; a coil write whose echo
+    # is lost (silence), then its read-back (FC01) answered
+    h_co, h_di = header(b("11 01 00 13 00 25")), header(b("11 02 00 C4 00 16"))
+    h_c15, h_c5 = header(b("11 0F 00 13 00 0A 02 CD 01")), header(b("11 05 00 AC FF 00"))
+    write("fuzz_worker", "bits_good3", bytes([0, 1, 2]) + h_co + h_di + h_c15 +
+          bytes([1, 0] * 3))
+    write("fuzz_worker", "bits_echo_lost", bytes([2, 2, 0]) + bytes([0x81]) + h_c5[1:] +
+          bytes([3, 0, 1, 0, 1, 0]))
 
 
 if __name__ == "__main__":

@@ -9,11 +9,13 @@
  *   probe      the device is in back-off: the read of its newest outstanding shape;
  *   resync     the device is out of step: a read no late reply can answer
  *              (mbfb_resync.c); its answer brings it back in step;
- *   read-back  a write of unknown outcome, in step: FC03 of the written registers;
+ *   read-back  a write of unknown outcome, in step: FC03 of the written registers (FC01
+ *              of the written coils);
  *   send       in step: the request itself.
  * Confirmed writes (README "Confirmed writes"): an echo while in step is DONE; an
  * exception is a definite "not applied"; any other failure leaves the outcome unknown
- * until a read-back (FC03 of the written registers, in step) shows it: equal -> DONE;
+ * until a read-back (FC03 of the written registers, FC01 of the written coils, in step)
+ * shows it: equal -> DONE;
  * differs -> MBFB_WRITE_IDEMPOTENT sends it again, MBFB_WRITE_ONCE ends UNCONFIRMED.
  * Back-off: three failed requests in a row start it; then one probe per interval.
  */
@@ -147,7 +149,9 @@ static int judge_reply(mbfb_bus_t *bus, mbfb_dev_t *dev, const uint8_t *req,
     if (err == MBFB_OK) {
         MBFB_DIAG_INC(dev, good);
         MBFB_DIAG_SET(dev, last_rtt_us, (uint32_t)(bus->quiet_from_us - t0));
-        if (mbfb_fc_is_read(req[1]) && out != NULL)
+        if (mbfb_fc_is_bits(req[1]) && mbfb_fc_is_read(req[1]) && out != NULL)
+            mbfb_bytes_to_bits(rsp + 3, req[4] << 8 | req[5], out); /* packed, LSB first */
+        else if (mbfb_fc_is_read(req[1]) && out != NULL)
             for (int i = 0; i < rsp[2] / 2; i++)
                 out[i] = (uint16_t)(rsp[3 + 2 * i] << 8 | rsp[4 + 2 * i]);
         return MBFB_OK;
@@ -240,7 +244,7 @@ static void attempt_failed(mbfb_bus_t *bus, attempts_t *a, int fc, int addr, int
  * else MBFB_WRITE_ONCE ends unconfirmed and MBFB_WRITE_IDEMPOTENT sends it again. */
 static int judge_readback(attempts_t *a)
 {
-    if (memcmp(a->words, a->req->vals, (size_t)a->req->count * sizeof a->words[0]) == 0)
+    if (mbfb_readback_shows(a->req->fc, a->req->count, a->req->vals, a->words))
         return MBFB_OK;
     if (a->req->policy == MBFB_WRITE_ONCE)
         return MBFB_E_UNCONFIRMED; /* not applied: never sent twice */
@@ -282,7 +286,7 @@ static int resync_step(mbfb_bus_t *bus, attempts_t *a)
 
     if (!mbfb_pick_resync(bus, q->devidx, q->fc, q->addr, q->count, a->unknown, &r))
         return a->unknown ? MBFB_E_UNCONFIRMED : (a->sent ? a->err : MBFB_E_OFFLINE);
-    is_readback = a->unknown && r.fc == MBFB_FC_READ_HOLDING && r.addr == q->addr &&
+    is_readback = a->unknown && r.fc == mbfb_fc_readback(q->fc) && r.addr == q->addr &&
                   r.count == q->count;
     is_request = !mbfb_fc_is_write(q->fc) && r.fc == q->fc && r.addr == q->addr &&
                  r.count == q->count;
@@ -311,18 +315,19 @@ static int resync_step(mbfb_bus_t *bus, attempts_t *a)
     mbfb_in_step(bus, a->dev);
     mbfb_remember_read(a->dev, r.fc, r.addr, r.count);
     if (is_request && q->out != NULL)
-        memcpy(q->out, a->words, (size_t)q->count * sizeof q->out[0]);
+        memcpy(q->out, a->words, (size_t)mbfb_data_words(q->fc, q->count) * sizeof q->out[0]);
     if (is_request)
         return MBFB_OK;
     return is_readback ? judge_readback(a) : STEP_AGAIN;
 }
 
 /* Read-back step: in step again after a write of unknown outcome, FC03 of the written
- * registers shows whether it was applied. */
+ * registers (FC01 of the written coils) shows whether it was applied. */
 static int readback_step(mbfb_bus_t *bus, attempts_t *a)
 {
     mbfb_request_t *q = a->req;
-    int rc = attempt(bus, a, MBFB_FC_READ_HOLDING, q->addr, q->count, NULL, a->words);
+    int fc = mbfb_fc_readback(q->fc);
+    int rc = attempt(bus, a, fc, q->addr, q->count, NULL, a->words);
 
     if (rc == -MBFB_E_PORTLOST)
         return rc;
@@ -331,7 +336,7 @@ static int readback_step(mbfb_bus_t *bus, attempts_t *a)
         return MBFB_E_UNCONFIRMED; /* no read-back possible */
     }
     if (rc != MBFB_OK) {
-        attempt_failed(bus, a, MBFB_FC_READ_HOLDING, q->addr, q->count, NULL);
+        attempt_failed(bus, a, fc, q->addr, q->count, NULL);
         a->err = rc;
         return STEP_AGAIN;
     }

@@ -10,10 +10,11 @@
  * has no transaction id, so the stream is treated as a serial line: needs_resync = 1,
  * the watched silence before a request (mbfb_serial_quiet reads the socket like a
  * tty; EOF there is MBFB_E_PORTLOST), the gap at the line's baud. A reply is framed
- * by its own header like libmodbus frames RTU (exception 5 bytes, FC03/04 by the byte
- * count, FC06/16 8 bytes); only those bytes are read, anything after them is left for
- * the next silence to discard. A connection that closes or resets is MBFB_E_PORTLOST:
- * the worker closes the port and the next request connects again.
+ * by its own header like libmodbus frames RTU (exception 5 bytes, FC01-04 by the byte
+ * count, FC05/06/15/16 8 bytes: mbfb_rtu_reply_wire_len); only those bytes are read,
+ * anything after them is left for the next silence to discard. A connection that closes
+ * or resets is MBFB_E_PORTLOST: the worker closes the port and the next request connects
+ * again.
  */
 #include <errno.h>
 #include <netdb.h>
@@ -133,24 +134,6 @@ static int rtutcp_send(mbfb_bus_t *bus, const uint8_t *frame, int len)
     return 0;
 }
 
-/* Bytes on the wire of the reply whose first `got` bytes are in buf (got >= 2, 3 for
- * FC03/04), or 0 when its function code gives no length. */
-static int wire_len(const uint8_t *buf, int got)
-{
-    if (buf[1] & MBFB_EXCEPTION_BIT)
-        return 5; /* slave, fc | MBFB_EXCEPTION_BIT, code, CRC */
-    switch (buf[1]) {
-    case MBFB_FC_READ_HOLDING:
-    case MBFB_FC_READ_INPUT:
-        return got < 3 ? -1 : 5 + buf[2];
-    case MBFB_FC_WRITE_SINGLE:
-    case MBFB_FC_WRITE_MULTIPLE:
-        return 8;
-    default:
-        return 0;
-    }
-}
-
 /* Read until `want` bytes are in buf or `deadline` (monotonic us) passes. Returns the
  * bytes held, or -MBFB_E_PORTLOST on EOF or a socket error. */
 static int read_until(mbfb_bus_t *bus, uint8_t *buf, int got, int want, int64_t deadline)
@@ -186,7 +169,7 @@ static int rtutcp_recv(mbfb_bus_t *bus, const uint8_t *req, uint8_t *frame, int 
         return got < 0 ? got : -MBFB_E_TIMEOUT;
     first = mbfb_now_us();
     for (;;) {
-        int len = got >= 2 ? wire_len(buf, got) : -1;
+        int len = mbfb_rtu_reply_wire_len(buf, got);
         if (len == 0)
             return -MBFB_E_BADREPLY; /* unknown function: the next silence drops the rest */
         if (len > 0)

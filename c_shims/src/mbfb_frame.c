@@ -39,34 +39,88 @@ static void put16(uint8_t *p, int v)
     p[1] = (uint8_t)(v & 0xFF);
 }
 
+/* Bits packed in words -> the wire's bytes, LSB first: byte j is the low (j even) or high
+ * (j odd) byte of word j / 2; the bits past n are cleared. */
+void mbfb_bits_to_bytes(const uint16_t *words, int n, uint8_t *out)
+{
+    int nbytes = (n + 7) / 8;
+    for (int j = 0; j < nbytes; j++)
+        out[j] = (uint8_t)(words[j / 2] >> (8 * (j & 1)));
+    if (n % 8)
+        out[nbytes - 1] &= (uint8_t)((1u << (n % 8)) - 1u);
+}
+
+/* The wire's bytes of n bits -> words; the bits past n are cleared (a reply's padding). */
+void mbfb_bytes_to_bits(const uint8_t *in, int n, uint16_t *words)
+{
+    int nbytes = (n + 7) / 8, nwords = MBFB_BIT_WORDS(n);
+    for (int w = 0; w < nwords; w++)
+        words[w] = 0;
+    for (int j = 0; j < nbytes; j++)
+        words[j / 2] = (uint16_t)(words[j / 2] | in[j] << (8 * (j & 1)));
+    if (n % 16)
+        words[nwords - 1] &= (uint16_t)((1u << (n % 16)) - 1u);
+}
+
+/* The read-back shows the write: registers word for word, coils bit for bit. */
+int mbfb_readback_shows(int fc, int count, const uint16_t *vals, const uint16_t *read)
+{
+    switch (fc) {
+    case MBFB_FC_WRITE_COIL:
+        return (read[0] & 1u) == (vals[0] != 0);
+    case MBFB_FC_WRITE_COILS:
+        for (int w = 0; w < MBFB_BIT_WORDS(count); w++) {
+            unsigned mask = (w + 1) * 16 <= count ? 0xFFFFu : (1u << (count % 16)) - 1u;
+            if (((vals[w] ^ read[w]) & mask) != 0)
+                return 0;
+        }
+        return 1;
+    default:
+        return memcmp(vals, read, (size_t)count * sizeof vals[0]) == 0;
+    }
+}
+
 int mbfb_build_request(uint8_t *out, int slave, int fc, int addr, int count,
                        const uint16_t *values)
 {
     out[0] = (uint8_t)slave;
     out[1] = (uint8_t)fc;
     put16(out + 2, addr);
-    if (fc == MBFB_FC_WRITE_SINGLE) {
+    switch (fc) {
+    case MBFB_FC_WRITE_SINGLE:
         put16(out + 4, values[0]);
         return 6;
-    }
-    put16(out + 4, count);
-    if (fc != MBFB_FC_WRITE_MULTIPLE)
+    case MBFB_FC_WRITE_COIL:
+        put16(out + 4, values[0] != 0 ? MBFB_COIL_ON : 0);
         return 6;
-    out[6] = (uint8_t)(2 * count);
-    for (int i = 0; i < count; i++)
-        put16(out + 7 + 2 * i, values[i]);
-    return 7 + 2 * count;
+    case MBFB_FC_WRITE_MULTIPLE:
+        put16(out + 4, count);
+        out[6] = (uint8_t)(2 * count);
+        for (int i = 0; i < count; i++)
+            put16(out + 7 + 2 * i, values[i]);
+        return 7 + 2 * count;
+    case MBFB_FC_WRITE_COILS:
+        put16(out + 4, count);
+        out[6] = (uint8_t)((count + 7) / 8);
+        mbfb_bits_to_bytes(values, count, out + 7);
+        return 7 + out[6];
+    default: /* the reads: address and count */
+        put16(out + 4, count);
+        return 6;
+    }
 }
 
 /* Length of the good reply frame to a request frame. */
 int mbfb_reply_len(const uint8_t *req)
 {
     if (mbfb_fc_is_read(req[1]))
-        return 3 + 2 * ((req[4] << 8) | req[5]);
-    return 6; /* FC06 echo, FC16 address + count */
+        return 3 + mbfb_read_bytes(req[1], (req[4] << 8) | req[5]);
+    return 6; /* FC05/06 echo, FC15/16 address + count */
 }
 
-/* Validate a reply frame against its request (see mbfb_internal.h). */
+/* Validate a reply frame against its request (see mbfb_internal.h). The bits past the
+ * count in an FC01/02 reply's last byte ("padded with zeros", 6.1) are not checked: they
+ * are cleared when the reply is read (mbfb_bytes_to_bits). */
 int mbfb_check_reply(const uint8_t *req, const uint8_t *rsp, int len)
 {
     int fc = req[1];
@@ -78,10 +132,14 @@ int mbfb_check_reply(const uint8_t *req, const uint8_t *rsp, int len)
     if (rsp[1] != fc || len != mbfb_reply_len(req))
         return MBFB_E_BADREPLY;
     switch (fc) {
+    case MBFB_FC_READ_COILS:
+    case MBFB_FC_READ_DISCRETE:
     case MBFB_FC_READ_HOLDING:
     case MBFB_FC_READ_INPUT:
         return rsp[2] == len - 3 ? MBFB_OK : MBFB_E_BADREPLY;
+    case MBFB_FC_WRITE_COIL:     /* echo of address and value (FF 00 / 00 00) */
     case MBFB_FC_WRITE_SINGLE:   /* echo of address and value */
+    case MBFB_FC_WRITE_COILS:    /* echo of address and count */
     case MBFB_FC_WRITE_MULTIPLE: /* echo of address and count */
         return memcmp(rsp + 2, req + 2, 4) == 0 ? MBFB_OK : MBFB_E_BADREPLY;
     default:
@@ -95,13 +153,20 @@ int mbfb_check_args(int slave, int fc, int addr, int count, const uint16_t *valu
     if (addr < 0 || addr >= MBFB_ADDR_SPACE)
         return MBFB_E_INVAL;
     switch (fc) {
+    case MBFB_FC_READ_COILS:
+    case MBFB_FC_READ_DISCRETE:
     case MBFB_FC_READ_HOLDING:
     case MBFB_FC_READ_INPUT:
-        if (slave == 0 || count < 1 || count > MBFB_MAX_READ)
+        if (slave == 0 || count < 1 || count > mbfb_read_max(fc))
             return MBFB_E_INVAL; /* broadcast reads get no reply: refused */
         break;
+    case MBFB_FC_WRITE_COIL:
     case MBFB_FC_WRITE_SINGLE:
         if (count != 1 || values == NULL)
+            return MBFB_E_INVAL;
+        break;
+    case MBFB_FC_WRITE_COILS:
+        if (count < 1 || count > MBFB_MAX_WRITE_BITS || values == NULL)
             return MBFB_E_INVAL;
         break;
     case MBFB_FC_WRITE_MULTIPLE:
@@ -126,22 +191,26 @@ int mbfb_hex_digit(int c)
     return -1;
 }
 
-/* Length of a whole reply frame (slave + PDU + CRC) starting at b (n bytes there), from its
- * function code and byte count; 0 if it is not one or not complete. */
+/* Bytes on the wire of an RTU reply from its header (mbfb_internal.h). */
+int mbfb_rtu_reply_wire_len(const uint8_t *b, int got)
+{
+    if (got < 2)
+        return -1;
+    if (b[1] & MBFB_EXCEPTION_BIT)
+        return 5; /* slave, fc | MBFB_EXCEPTION_BIT, code, CRC */
+    if (mbfb_fc_is_read(b[1]))
+        return got < 3 ? -1 : 3 + b[2] + 2; /* slave, fc, byte count, data, CRC */
+    if (mbfb_fc_is_write(b[1]))
+        return 8; /* slave, fc, address, value / count, CRC */
+    return 0;
+}
+
+/* Length of a whole reply frame (slave + PDU + CRC) starting at b (n bytes there); 0 if it
+ * is not one or not complete. */
 static int rtu_reply_len(const uint8_t *b, int n)
 {
-    int len;
-    if (n < 5)
-        return 0;
-    if (b[1] & MBFB_EXCEPTION_BIT)
-        len = 5;
-    else if (mbfb_fc_is_read(b[1]))
-        len = 3 + b[2] + 2;
-    else if (mbfb_fc_is_write(b[1]))
-        len = 8;
-    else
-        return 0;
-    return len <= n ? len : 0;
+    int len = n < 5 ? 0 : mbfb_rtu_reply_wire_len(b, n);
+    return len > 0 && len <= n ? len : 0;
 }
 
 int mbfb_next_reply(int framing, const uint8_t *buf, int n, int *pos, uint8_t *frame)

@@ -28,20 +28,57 @@ extern "C" {
 #define MBFB_ADDR_SPACE    0x10000 /* register addresses 0..0xFFFF                 */
 #define MBFB_EXCEPTION_BIT 0x80 /* set in the function code of an exception reply  */
 
-/** Is fc a read (MBFB_FC_READ_HOLDING, MBFB_FC_READ_INPUT)? */
+#define MBFB_COIL_ON       0xFF00 /* FC05's value for ON (OFF: 0x0000)              */
+
+/** Does fc read or write bits (coils, discrete inputs: FC01, 02, 05, 15)? */
+static inline int mbfb_fc_is_bits(int fc)
+{
+    return fc == MBFB_FC_READ_COILS || fc == MBFB_FC_READ_DISCRETE ||
+           fc == MBFB_FC_WRITE_COIL || fc == MBFB_FC_WRITE_COILS;
+}
+/** Is fc a read (FC01, 02, 03, 04)? */
 static inline int mbfb_fc_is_read(int fc)
 {
-    return fc == MBFB_FC_READ_HOLDING || fc == MBFB_FC_READ_INPUT;
+    return fc == MBFB_FC_READ_HOLDING || fc == MBFB_FC_READ_INPUT ||
+           fc == MBFB_FC_READ_COILS || fc == MBFB_FC_READ_DISCRETE;
 }
-/** Is fc a write (MBFB_FC_WRITE_SINGLE, MBFB_FC_WRITE_MULTIPLE)? */
+/** Is fc a write (FC05, 06, 15, 16)? */
 static inline int mbfb_fc_is_write(int fc)
 {
-    return fc == MBFB_FC_WRITE_SINGLE || fc == MBFB_FC_WRITE_MULTIPLE;
+    return fc == MBFB_FC_WRITE_SINGLE || fc == MBFB_FC_WRITE_MULTIPLE ||
+           fc == MBFB_FC_WRITE_COIL || fc == MBFB_FC_WRITE_COILS;
 }
-/** The other read function: input registers for holding ones and back. */
+/** The other read function of the same kind: input registers for holding ones and back,
+ *  discrete inputs for coils and back. */
 static inline int mbfb_fc_other_read(int fc)
 {
-    return fc == MBFB_FC_READ_HOLDING ? MBFB_FC_READ_INPUT : MBFB_FC_READ_HOLDING;
+    switch (fc) {
+    case MBFB_FC_READ_HOLDING:  return MBFB_FC_READ_INPUT;
+    case MBFB_FC_READ_COILS:    return MBFB_FC_READ_DISCRETE;
+    case MBFB_FC_READ_DISCRETE: return MBFB_FC_READ_COILS;
+    default:                    return MBFB_FC_READ_HOLDING;
+    }
+}
+/** The read that shows what a write (fc) left on the device (its read-back): FC01 for
+ *  coils, FC03 for registers. */
+static inline int mbfb_fc_readback(int fc)
+{
+    return mbfb_fc_is_bits(fc) ? MBFB_FC_READ_COILS : MBFB_FC_READ_HOLDING;
+}
+/** Most items a read of fc may ask for (registers or bits). */
+static inline int mbfb_read_max(int fc)
+{
+    return mbfb_fc_is_bits(fc) ? MBFB_MAX_READ_BITS : MBFB_MAX_READ;
+}
+/** Data bytes of a good reply to a read of `count` items with fc (its byte count). */
+static inline int mbfb_read_bytes(int fc, int count)
+{
+    return mbfb_fc_is_bits(fc) ? (count + 7) / 8 : 2 * count;
+}
+/** Words the API carries for `count` items of fc: registers, or bits packed. */
+static inline int mbfb_data_words(int fc, int count)
+{
+    return mbfb_fc_is_bits(fc) ? MBFB_BIT_WORDS(count) : count;
 }
 
 /* ---- sizes of this library -------------------------------------------------- */
@@ -121,6 +158,21 @@ int mbfb_hex_digit(int c);
 
 /** Validate post arguments; 0 or MBFB_E_INVAL. */
 int mbfb_check_args(int slave, int fc, int addr, int count, const uint16_t *values);
+
+/** Bytes on the wire (slave + PDU + CRC) of the RTU reply whose first `got` bytes are at b,
+ *  from its function code and byte count: > 0, -1 when more bytes are needed to tell (the
+ *  byte count), or 0 when its function code gives no length. The one rule for framing a
+ *  reply ourselves (late replies heard, RTU over TCP); libmodbus has its own. */
+int mbfb_rtu_reply_wire_len(const uint8_t *b, int got);
+
+/** Bits packed in words (MBFB_BIT_WORDS) -> the wire's bytes of `n` bits (FC15, FC01/02
+ *  replies), LSB first; the bits past n in the last byte are 0. */
+void mbfb_bits_to_bytes(const uint16_t *words, int n, uint8_t *out);
+/** The wire's bytes of `n` bits -> MBFB_BIT_WORDS(n) words; the bits past n are 0. */
+void mbfb_bytes_to_bits(const uint8_t *in, int n, uint16_t *words);
+/** Does `read` (its read-back, mbfb_fc_readback) show what write (fc, count, vals) wrote?
+ *  Registers word for word, coils bit for bit (FC05: ON when vals[0] != 0). */
+int mbfb_readback_shows(int fc, int count, const uint16_t *vals, const uint16_t *read);
 
 /* ---- timing (mbfb_timing.c) ---------------------------------------------- */
 typedef struct mbfb_timing {
@@ -252,22 +304,27 @@ typedef struct mbfb_slot {
     int chain;              /* 1: a chain (mbfb_post_chain) of `count` entries: registers
                                in values[0..count), words in values[count..2 count)   */
     int result;             /* MBFB_OK or positive MBFB_E_* (written by worker)  */
-    int nvals;              /* registers read; a chain: entries held (atomic: worker
-                               writes, mbfb_chain_held reads)                      */
+    int nvals;              /* registers read (bits: FC01/02); a chain: entries held
+                               (atomic: worker writes, mbfb_chain_held reads)      */
     uint16_t values[MBFB_MAX_READ]; /* write values in, read values out          */
 } mbfb_slot_t;
-/* a chain's registers and words fit in one slot */
+/* a chain's registers and words fit in one slot, and so do the most bits a request carries */
 typedef char mbfb_chain_fits_a_slot[2 * MBFB_CHAIN_MAX <= MBFB_MAX_READ ? 1 : -1];
+typedef char mbfb_bits_fit_a_slot[MBFB_BIT_WORDS(MBFB_MAX_READ_BITS) <= MBFB_MAX_READ &&
+                                  MBFB_BIT_WORDS(MBFB_MAX_READ_BITS) <= MBFB_PLAN_MAX_WORDS
+                                  ? 1 : -1];
 
 /* ---- devices ------------------------------------------------------------- */
 /** Reply shape of a failed attempt whose reply may still come (README "Late replies"):
  *  what a late reply to it would look like. A read's reply is told by (fc, byte count); a
- *  write's echo by fc and its first two words (address, and value (FC06) or count (FC16)). */
+ *  write's echo by fc and its first two words (address, and value (FC05/06) or count
+ *  (FC15/16)). */
 typedef struct mbfb_shape {
     int fc;                  /* function code of the request                      */
-    int bytes;               /* reads: the reply's byte count (2 x registers)     */
-    int addr;                /* reads: the first register (a probe reads it again) */
-    uint16_t echo[2];        /* writes: the echo's address and value / count      */
+    int bytes;               /* reads: the reply's byte count (mbfb_read_bytes)   */
+    int addr, count;         /* reads: the range (a probe reads it again)          */
+    uint16_t echo[2];        /* writes: the echo's address and value / count (the request's
+                                words 2..5, mbfb_build_request)                      */
     int64_t t_us;            /* when that attempt was sent                         */
     int readable;            /* reads: inside a range that read well, so never answered
                                 with a fixed exception (mbfb_worker.c)              */
@@ -338,9 +395,12 @@ typedef struct mbfb_plan {
     /* settings (scan writes, worker reads; all atomic) */
     uint32_t cfg_seq;        /* sequence lock: odd while plan_set writes          */
     int running;             /* 1 after mbfb_plan_set, 0 after mbfb_plan_stop      */
-    int n, period_ms, slow_ms;
+    int n, period_ms, slow_ms; /* period_ms: >= 0 or MBFB_PERIOD_ON_DEMAND           */
     mbfb_plan_item_t items[MBFB_PLAN_MAX_ITEMS];
     uint32_t taken;          /* atomic: seq of the snapshot mbfb_plan_take copied last */
+    uint32_t trigger;        /* atomic: bumped by mbfb_plan_trigger (scan)          */
+    uint32_t trigger_seen;   /* worker only: `trigger` when the last refresh started:
+                                a refresh is due at once while they differ          */
     mbfb_slow_t slow;        /* the slow tier (gen: scan; the rest: worker)        */
     /* worker only */
     uint32_t cfg_seen;       /* cfg_seq of the settings of the last refresh        */
@@ -488,7 +548,7 @@ int  mbfb_wake_wait(mbfb_bus_t *bus, int port_fd, int64_t until);
 typedef struct mbfb_request {
     int devidx, fc, addr, count, policy;
     const uint16_t *vals;    /* writes                                               */
-    uint16_t *out;           /* reads: count registers                               */
+    uint16_t *out;           /* reads: count registers, or count bits packed          */
     int write_sent;          /* out: the write itself went on the wire (maybe applied) */
 } mbfb_request_t;
 /** Run one request: back-off, the port, its attempts (mbfb_attempt.c). Returns MBFB_OK or

@@ -64,7 +64,8 @@ int mbfb_plan_open(int dev)
     return rc;
 }
 
-/* Check a plan's items: reads, counts, address range, tiers, words in all. */
+/* Check a plan's items: reads (registers or bits), counts, address range, tiers, words
+ * in all (a bit item fills MBFB_BIT_WORDS(count) words). */
 static int check_items(const mbfb_plan_item_t *items, int n)
 {
     int words = 0;
@@ -72,11 +73,11 @@ static int check_items(const mbfb_plan_item_t *items, int n)
         return MBFB_E_INVAL;
     for (int i = 0; i < n; i++) {
         const mbfb_plan_item_t *it = &items[i];
-        if (!mbfb_fc_is_read(it->fc) || it->count < 1 || it->count > MBFB_MAX_READ ||
+        if (!mbfb_fc_is_read(it->fc) || it->count < 1 || it->count > mbfb_read_max(it->fc) ||
             it->addr < 0 || it->addr + it->count > MBFB_ADDR_SPACE ||
             it->tier < MBFB_TIER_EVERY || it->tier > MBFB_TIER_FAST)
             return MBFB_E_INVAL;
-        words += it->count;
+        words += mbfb_data_words(it->fc, it->count);
     }
     return words > MBFB_PLAN_MAX_WORDS ? MBFB_E_INVAL : MBFB_OK;
 }
@@ -120,7 +121,8 @@ int mbfb_plan_set(int plan, const mbfb_plan_item_t *items, int n, int period_ms,
 
     if (p == NULL)
         return -MBFB_E_BADHANDLE;
-    if (check_items(items, n) != MBFB_OK || period_ms < 0 || slow_period_ms < 0)
+    if (check_items(items, n) != MBFB_OK ||
+        (period_ms < 0 && period_ms != MBFB_PERIOD_ON_DEMAND) || slow_period_ms < 0)
         return -MBFB_E_INVAL;
     write_cfg(p, items, n, period_ms, slow_period_ms, 1);
     b = __atomic_load_n(&mbfb_buses[p->bus], __ATOMIC_ACQUIRE);
@@ -136,6 +138,22 @@ int mbfb_plan_stop(int plan)
     if (p == NULL)
         return -MBFB_E_BADHANDLE;
     write_cfg(p, NULL, 0, 0, 0, 0);
+    return 0;
+}
+
+/* A refresh due now: the trigger count moves (the worker compares it with the count it
+ * saw when its last refresh of the plan started), and the worker is woken. */
+int mbfb_plan_trigger(int plan)
+{
+    mbfb_plan_t *p = plan_of(plan);
+    mbfb_bus_t *b;
+
+    if (p == NULL)
+        return -MBFB_E_BADHANDLE;
+    __atomic_fetch_add(&p->trigger, 1u, __ATOMIC_RELEASE);
+    b = __atomic_load_n(&mbfb_buses[p->bus], __ATOMIC_ACQUIRE);
+    if (b != NULL)
+        mbfb_wake(b); /* an edge of the block's Trigger, not steady state */
     return 0;
 }
 
@@ -209,7 +227,7 @@ int mbfb_plan_read_cfg(mbfb_plan_t *p, mbfb_plan_cfg_t *cfg)
             cfg->items[i].addr = LD(&p->items[i].addr);
             cfg->items[i].count = LD(&p->items[i].count);
             cfg->items[i].tier = LD(&p->items[i].tier);
-            cfg->nwords += cfg->items[i].count;
+            cfg->nwords += mbfb_data_words(cfg->items[i].fc, cfg->items[i].count);
         }
         cfg->period_ms = LD(&p->period_ms);
         cfg->slow_ms = LD(&p->slow_ms);
@@ -232,7 +250,8 @@ int mbfb_plan_parked(mbfb_plan_t *p, int64_t now)
 {
     uint32_t mid = __atomic_load_n(&p->mid, __ATOMIC_ACQUIRE);
     uint32_t cfg = __atomic_load_n(&p->cfg_seq, __ATOMIC_ACQUIRE);
-    int64_t every = (int64_t)__atomic_load_n(&p->period_ms, __ATOMIC_RELAXED) * 1000;
+    int period = __atomic_load_n(&p->period_ms, __ATOMIC_RELAXED);
+    int64_t every = period > 0 ? (int64_t)period * 1000 : 0; /* on demand: the scan's */
     mbfb_plan_cfg_t c;
     uint16_t words[MBFB_PLAN_MAX_WORDS];
 

@@ -125,8 +125,8 @@ int mbfb_post_write(int dev, int fc, int addr, int count, const uint16_t *values
         return -MBFB_E_INVAL;
     if (!POST_CLAIM(p, dev, fc, addr, count, policy, 0))
         return -MBFB_E_QUEUEFULL;
-    if (mbfb_fc_is_write(fc))
-        memcpy(p.s->values, values, (size_t)count * sizeof values[0]);
+    if (mbfb_fc_is_write(fc)) /* registers, or coils packed (FC05: one word) */
+        memcpy(p.s->values, values, (size_t)mbfb_data_words(fc, count) * sizeof values[0]);
     queue_slot(p.bus, p.s, p.gen);
     return make_handle(p.d->bus, p.index, p.gen);
 }
@@ -194,9 +194,13 @@ int mbfb_take(int req, uint16_t *values, int max)
     if (ST(w) == MBFB_SLOT_FAILED) {
         rc = -s->result;
     } else if (ST(w) == MBFB_SLOT_DONE) {
-        rc = values == NULL || max < 0 ? 0 : (s->nvals < max ? s->nvals : max);
-        if (rc > 0)
-            memcpy(values, s->values, (size_t)rc * sizeof values[0]);
+        int words = mbfb_data_words(s->fc, s->nvals); /* FC01/02: nvals bits, packed */
+        words = values == NULL || max < 0 ? 0 : (words < max ? words : max);
+        if (words > 0)
+            memcpy(values, s->values, (size_t)words * sizeof values[0]);
+        rc = words; /* registers copied; bits copied: */
+        if (mbfb_fc_is_bits(s->fc))
+            rc = 16 * words < s->nvals ? 16 * words : s->nvals;
     } else {
         return -MBFB_E_BADHANDLE; /* not finished (or already taken) */
     }

@@ -82,16 +82,18 @@ static void expire_shapes(mbfb_dev_t *dev, int64_t now)
     dev->n_outstanding = k;
 }
 
-/* The index of the outstanding reply shape of a read of `count` registers with fc, or -1. */
+/* The index of the outstanding reply shape of a read of `count` registers (bits) with fc,
+ * or -1. */
 static int read_shape(const mbfb_dev_t *dev, int fc, int count)
 {
     for (int i = 0; i < dev->n_outstanding; i++)
-        if (dev->outstanding[i].fc == fc && dev->outstanding[i].bytes == 2 * count)
+        if (dev->outstanding[i].fc == fc &&
+            dev->outstanding[i].bytes == mbfb_read_bytes(fc, count))
             return i;
     return -1;
 }
 
-/* A read of `count` registers with fc: is its reply shape outstanding? */
+/* A read of `count` registers (bits) with fc: is its reply shape outstanding? */
 static int shape_taken(const mbfb_dev_t *dev, int fc, int count)
 {
     return read_shape(dev, fc, count) >= 0;
@@ -130,12 +132,15 @@ void mbfb_out_of_step(mbfb_bus_t *bus, mbfb_dev_t *dev, int fc, int addr, int co
             dev->outstanding[same].t_us = t;             /* a probe sent it again   */
             return;
         }
-        sh.bytes = 2 * count;
+        sh.bytes = mbfb_read_bytes(fc, count);
         sh.addr = addr;
+        sh.count = count;
         sh.readable = readable;
     } else {
-        sh.echo[0] = (uint16_t)addr;
-        sh.echo[1] = fc == MBFB_FC_WRITE_SINGLE ? vals[0] : (uint16_t)count;
+        uint8_t req[MBFB_FRAME_MAX]; /* the echo is the request's words 2..5 */
+        mbfb_build_request(req, dev->slave, fc, addr, count, vals);
+        sh.echo[0] = (uint16_t)(req[2] << 8 | req[3]);
+        sh.echo[1] = (uint16_t)(req[4] << 8 | req[5]);
         for (int i = 0; i < dev->n_outstanding; i++)
             if (dev->outstanding[i].fc == fc && dev->outstanding[i].echo[0] == sh.echo[0] &&
                 dev->outstanding[i].echo[1] == sh.echo[1])
@@ -200,12 +205,26 @@ int mbfb_exception_outstanding(const mbfb_dev_t *dev, int fc, int code)
 
 /* ---- choosing a resync read or a probe --------------------------------------------- */
 
+/* The next count to try after k for fc: the least count whose reply is one byte longer
+ * (registers: k + 1; bits: the next multiple of 8, plus 1). */
+static int next_count(int fc, int k)
+{
+    return mbfb_fc_is_bits(fc) ? k + 8 : k + 1;
+}
+
+/* Is a read of k items with fc shorter on the wire than *best (none yet: yes)? */
+static int shorter(int fc, int k, const mbfb_range_t *best)
+{
+    return best->count == 0 ||
+           mbfb_read_bytes(fc, k) < mbfb_read_bytes(best->fc, best->count);
+}
+
 /* The shortest read of fc inside the readable window (addr, count) whose reply shape is
  * free, into *best if shorter than what it holds. */
 static void shortest_free_in_window(const mbfb_dev_t *dev, int fc, int addr, int count,
                                     mbfb_range_t *best)
 {
-    for (int k = 1; k <= count && (best->count == 0 || k < best->count); k++)
+    for (int k = 1; k <= count && shorter(fc, k, best); k = next_count(fc, k))
         if (!shape_taken(dev, fc, k)) {
             best->fc = fc;
             best->addr = addr;
@@ -218,7 +237,7 @@ static void shortest_free_in_window(const mbfb_dev_t *dev, int fc, int addr, int
  * to be readable: the device may answer an exception), into *best if shorter. */
 static void shortest_free_from(const mbfb_dev_t *dev, int fc, int addr, mbfb_range_t *best)
 {
-    for (int k = 1; k <= MBFB_MAX_READ && (best->count == 0 || k < best->count); k++)
+    for (int k = 1; k <= mbfb_read_max(fc) && shorter(fc, k, best); k = next_count(fc, k))
         if (!shape_taken(dev, fc, k)) {
             best->fc = fc;
             best->addr = addr + k > MBFB_ADDR_SPACE ? MBFB_ADDR_SPACE - k : addr;
@@ -272,7 +291,7 @@ int mbfb_pick_resync(mbfb_bus_t *bus, int devidx, int fc, int addr, int count,
                      int readback, mbfb_range_t *r)
 {
     mbfb_dev_t *dev = mbfb_devs[devidx];
-    int read_fc = mbfb_fc_is_write(fc) ? MBFB_FC_READ_HOLDING : fc;
+    int read_fc = mbfb_fc_is_write(fc) ? mbfb_fc_readback(fc) : fc;
     int other_fc = mbfb_fc_other_read(read_fc);
 
     expire_shapes(dev, mbfb_now_us());
@@ -315,7 +334,7 @@ int mbfb_pick_probe(const mbfb_dev_t *dev, mbfb_range_t *r)
         return 0;
     r->fc = newest->fc;
     r->addr = newest->addr;
-    r->count = newest->bytes / 2;
+    r->count = newest->count;
     return 1;
 }
 

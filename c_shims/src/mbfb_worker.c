@@ -115,24 +115,28 @@ static int run_posted(mbfb_bus_t *bus, int chains)
 
 /* ---- plans ------------------------------------------------------------------------- */
 
-/* When a plan is due (monotonic us); INT64_MAX if it is not running. New settings:
- * now. A device in back-off is due at its next probe only; a port that could not be
- * opened, once the probe interval has passed (then the first plan due tries to open
- * it, and a failure fails all of them at once: mbfb_plans_no_port). */
+/* When a plan is due (monotonic us); INT64_MAX if it is not running, or runs on demand
+ * and is not triggered. New settings or a trigger (mbfb_plan_trigger): now. A device in
+ * back-off is due at its next probe only; a port that could not be opened, once the probe
+ * interval has passed (then the first plan due tries to open it, and a failure fails all
+ * of them at once: mbfb_plans_no_port). */
 static int64_t plan_due(mbfb_bus_t *bus, mbfb_plan_t *p)
 {
     mbfb_dev_t *dev = mbfb_devs[p->dev];
+    int period = __atomic_load_n(&p->period_ms, __ATOMIC_RELAXED);
     int64_t due;
     if (!__atomic_load_n(&p->running, __ATOMIC_ACQUIRE))
         return INT64_MAX;
     if (mbfb_plan_parked(p, mbfb_now_us()))
         return INT64_MAX; /* its block is not scanned: stopped until it is (mbfb_plan.c) */
-    if (p->last_start_us == 0 || __atomic_load_n(&p->cfg_seq, __ATOMIC_ACQUIRE) != p->cfg_seen)
+    if (p->last_start_us == 0 || __atomic_load_n(&p->cfg_seq, __ATOMIC_ACQUIRE) != p->cfg_seen ||
+        __atomic_load_n(&p->trigger, __ATOMIC_ACQUIRE) != p->trigger_seen)
         due = 0;
+    else if (period == MBFB_PERIOD_ON_DEMAND)
+        return INT64_MAX; /* refreshed once when set, then on a trigger only */
     else
-        due = p->last_start_us +
-              (int64_t)__atomic_load_n(&p->period_ms, __ATOMIC_RELAXED) * 1000;
-    if (p->failed && dev->heard)
+        due = p->last_start_us + (int64_t)period * 1000;
+    if (p->failed && dev->heard && period != MBFB_PERIOD_ON_DEMAND)
         due = 0; /* its device was heard: it can answer again now */
     if (dev->probe_us > 0 && dev->next_probe_us > due)
         due = dev->next_probe_us;
@@ -178,7 +182,8 @@ static int read_items(mbfb_bus_t *bus, const mbfb_plan_t *p, const mbfb_plan_cfg
 {
     int offset = 0, first = 1;
 
-    for (int i = 0; i < cfg->n; offset += cfg->items[i].count, i++) {
+    for (int i = 0; i < cfg->n;
+         offset += mbfb_data_words(cfg->items[i].fc, cfg->items[i].count), i++) {
         mbfb_request_t request;
         int rc;
         if (!tier_read(cfg->items[i].tier, slow))
@@ -243,6 +248,8 @@ static void run_refresh(mbfb_bus_t *bus, mbfb_plan_t *p)
     int slow, owed, result;
 
     p->last_start_us = start;
+    /* triggers until now are served by this refresh; a later one makes another */
+    p->trigger_seen = __atomic_load_n(&p->trigger, __ATOMIC_ACQUIRE);
     if (!mbfb_plan_read_cfg(p, &cfg))
         return;
     p->cfg_seen = cfg.seq;

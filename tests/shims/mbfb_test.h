@@ -98,6 +98,9 @@ typedef struct peer {
     int reply_len[PEER_LOG];  /* bytes of that reply                               */
     /* a tiny register bank for peer_answer(); slaves 0..7, registers 0..255 */
     uint16_t regs[8][256];
+    uint8_t coils[8][256];    /* ... coils (0/1, one byte each: packed only on the wire,
+                                 by the peer's own code), slaves 0..7, 0..255         */
+    uint8_t inputs[8][256];   /* ... and discrete inputs; bits past 255: exception 2   */
     int dead[256];            /* peer_answer stays silent for these slaves        */
     int collisions;           /* __atomic: request bytes came in while a paced reply
                                  was still going out (a collision on RS-485)       */
@@ -136,6 +139,9 @@ void peer_reply_raw(peer_reply_t *r, const uint8_t *bytes, int len);
 /** Change the register bank / silence a slave while the peer runs. */
 void peer_set_reg(peer_t *p, int slave, int addr, uint16_t value);
 void peer_set_dead(peer_t *p, int slave, int dead);
+/** A coil (fc 1) or discrete input (fc 2) of the peer's bank; and read a coil. */
+void peer_set_bit(peer_t *p, int fc, int slave, int addr, int on);
+int peer_coil(peer_t *p, int slave, int addr);
 /** Start writing `pattern` over and over, one byte every interval_us, `max` bytes in
  *  all (0 = until peer_babble_stop). */
 int peer_babble_start(peer_t *p, const uint8_t *pattern, int len, int interval_us, long max);
@@ -195,8 +201,12 @@ void t_sleep_ms(int ms);
 void t_sleep_us(long us);
 int64_t t_now_us(void);
 /** Reads and writes of every function against pymodbus_peer.py (its registers: holding
- *  0x3000 + i, input 0x4000 + i), checked, ending with an exception past its map. */
+ *  0x3000 + i, input 0x4000 + i; its coils and discrete inputs: T_PM_COIL, T_PM_INPUT),
+ *  checked, ending with an exception past its map. */
 void t_pymodbus_conversation(int dev);
+/** pymodbus_peer.py's bits at PDU address a (its blocks are 1-based: index a + 1). */
+#define T_PM_COIL(a) (((a) + 1) % 3 == 0)
+#define T_PM_INPUT(a) (((a) + 1) % 5 < 2)
 /** A fresh temporary directory for pty links; returns path (static). */
 const char *t_tmpdir(void);
 

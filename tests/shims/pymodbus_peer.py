@@ -5,8 +5,8 @@ usage: pymodbus_peer.py PORT rtu|ascii     serial server on PORT; prints READY
        pymodbus_peer.py rtu-tcp [mvd94]    RTU framer on a TCP server at 127.0.0.1, any free
                                            port (RTU over TCP); prints READY PORT
 Slave 1: holding register at PDU address a = 0x3001 + a, input register = 0x4001 + a
-(pymodbus's sequential block is 1-based), 100 of each; other addresses give
-exception 2. With `mvd94`, slave 1 holds an MV-D94's map instead (MVD94_HR: holding
+(pymodbus's sequential block is 1-based), 100 of each; coil a is ON when (a + 1) % 3 == 0,
+discrete input a when (a + 1) % 5 < 2, 100 of each; other addresses give exception 2. With `mvd94`, slave 1 holds an MV-D94's map instead (MVD94_HR: holding
 registers 0x00..0x21 at the factory settings with SV 123.4 at one decimal; PV 27.5 at input
 register 0x1000), for a device block (tests/fb t_rtutcp_pymodbus.st). Serves until killed.
 """
@@ -26,10 +26,14 @@ MVD94_HR = [1234, 0, 0, 10, 10, 10, 100, 30, 20, 1, 1, 1, 1, 0x20, 1, 0x0C, 0x11
 if sys.argv[1:] == ["rtu-tcp", "mvd94"]:
     hr = ModbusSequentialDataBlock(0, [0] + MVD94_HR)
     ir = ModbusSequentialDataBlock(0x1000, [0, 275])
+    bits = {}
 else:
     hr = ModbusSequentialDataBlock(0, [0x3000 + i for i in range(101)])
     ir = ModbusSequentialDataBlock(0, [0x4000 + i for i in range(101)])
-ctx = ModbusServerContext(slaves={1: ModbusSlaveContext(hr=hr, ir=ir)}, single=False)
+    # bits (mbfb_test.h T_PM_COIL, T_PM_INPUT): index i of the 1-based blocks
+    bits = {"co": ModbusSequentialDataBlock(0, [i % 3 == 0 for i in range(101)]),
+            "di": ModbusSequentialDataBlock(0, [i % 5 < 2 for i in range(101)])}
+ctx = ModbusServerContext(slaves={1: ModbusSlaveContext(hr=hr, ir=ir, **bits)}, single=False)
 
 
 async def rtu_over_tcp():

@@ -290,7 +290,10 @@ static void bad_args(void)
     CHECK_EQ(mbfb_post(dev, 3, 0, 0, NULL), -MBFB_E_INVAL);
     CHECK_EQ(mbfb_post(dev, 3, 0, 126, NULL), -MBFB_E_INVAL);
     CHECK_EQ(mbfb_post(dev, 4, 65535, 2, NULL), -MBFB_E_INVAL);
-    CHECK_EQ(mbfb_post(dev, 5, 0, 1, v), -MBFB_E_INVAL);
+    CHECK_EQ(mbfb_post(dev, 7, 0, 1, v), -MBFB_E_INVAL); /* not a function of the shims */
+    CHECK_EQ(mbfb_post(dev, 5, 0, 1, NULL), -MBFB_E_INVAL);
+    CHECK_EQ(mbfb_post(dev, 1, 0, 2001, NULL), -MBFB_E_INVAL);
+    CHECK_EQ(mbfb_post(dev, 15, 0, 1969, v), -MBFB_E_INVAL);
     CHECK_EQ(mbfb_post(dev, 6, 0, 1, NULL), -MBFB_E_INVAL);
     CHECK_EQ(mbfb_post(dev, 16, 0, 124, v), -MBFB_E_INVAL);
     CHECK_EQ(mbfb_post(dev, 16, -1, 1, v), -MBFB_E_INVAL);

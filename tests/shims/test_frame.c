@@ -1,7 +1,8 @@
 /*
  * test_frame.c - CRC-16, LRC and request frames against every worked frame of the
- * manuals (as the maps keep them: maps/<device>.json, "frames"), reply
- * validation, argument checks, timing values, error texts. No I/O.
+ * manuals (as the maps keep them: maps/<device>.json, "frames") and the Modbus application
+ * protocol's coil and discrete-input examples, reply validation, bits packed into words,
+ * argument checks, timing values, error texts. No I/O.
  */
 #include <string.h>
 
@@ -27,6 +28,11 @@ static const char *const rtu_frames[] = {
     "01 06 00 48 68 25 E7 C7", "01 06 00 48 68 28 26 02", "01 06 00 48 68 27 66 06",
     "01 03 00 00 00 50 45 F6", "01 03 00 00 00 4F 04 3E", "01 06 00 48 68 2D E6 01",
     "01 86 03 02 61", "01 81 01 81 90",
+    /* coils and discrete inputs: the Modbus application protocol's examples (1.1b3, 6.1,
+     * 6.2, 6.5, 6.11) on slave 0x11, as the Modicon / Simply Modbus RTU examples print them */
+    "11 01 00 13 00 25 0E 84", "11 01 05 CD 6B B2 0E 1B 45 E6", "11 02 00 C4 00 16 BA A9",
+    "11 02 03 AC DB 35 20 18", "11 05 00 AC FF 00 4E 8B", "11 0F 00 13 00 0A 02 CD 01 BF 0B",
+    "11 0F 00 13 00 0A 26 99",
 };
 
 
@@ -94,7 +100,7 @@ static void check_request(const char *want, int slave, int fc, int addr, int cou
 
 static void test_requests(void)
 {
-    uint16_t v[60];
+    uint16_t v[MBFB_MAX_READ];
     uint8_t b[PEER_BUF];
     t_scenario = "requests";
     check_request("01 03 00 00 00 01 84 0A", 1, 3, 0, 1, NULL);
@@ -115,6 +121,91 @@ static void test_requests(void)
         v[i] = (uint16_t)(b[7 + 2 * i] << 8 | b[8 + 2 * i]);
     check_request(fdc_ex1, 1, 16, 0, 52, v);
     CHECK_EQ(n, 113);
+
+    /* coils and discrete inputs (the printed frames above) */
+    check_request("11 01 00 13 00 25 0E 84", 0x11, MBFB_FC_READ_COILS, 0x13, 37, NULL);
+    check_request("11 02 00 C4 00 16 BA A9", 0x11, MBFB_FC_READ_DISCRETE, 0xC4, 22, NULL);
+    v[0] = 1;
+    check_request("11 05 00 AC FF 00 4E 8B", 0x11, MBFB_FC_WRITE_COIL, 0xAC, 1, v);
+    v[0] = 0x8000; /* any value but 0 is ON */
+    check_request("11 05 00 AC FF 00 4E 8B", 0x11, MBFB_FC_WRITE_COIL, 0xAC, 1, v);
+    v[0] = 0;
+    n = mbfb_build_request(b, 0x11, MBFB_FC_WRITE_COIL, 0xAC, 1, v);
+    CHECK_HEX(b, n, "11 05 00 AC 00 00");
+    v[0] = 0x01CD; /* 10 coils: 1 0 1 1 0 0 1 1, 1 0 (6.11) */
+    check_request("11 0F 00 13 00 0A 02 CD 01 BF 0B", 0x11, MBFB_FC_WRITE_COILS, 0x13, 10, v);
+    v[0] = 0xFDCD; /* bits past the count are not sent */
+    check_request("11 0F 00 13 00 0A 02 CD 01 BF 0B", 0x11, MBFB_FC_WRITE_COILS, 0x13, 10, v);
+    v[0] = 0x6BCD, v[1] = 0x0EB2, v[2] = 0x001B; /* 37 coils: byte j is byte j % 2 of word j / 2 */
+    n = mbfb_build_request(b, 1, MBFB_FC_WRITE_COILS, 0, 37, v);
+    CHECK_HEX(b, n, "01 0F 00 00 00 25 05 CD 6B B2 0E 1B");
+    for (int i = 0; i < 125; i++)
+        v[i] = 0xFFFF;
+    CHECK_EQ(mbfb_build_request(b, 1, MBFB_FC_WRITE_COILS, 0, MBFB_MAX_WRITE_BITS, v),
+             7 + 246); /* the longest FC15: 246 data bytes, a 253-byte PDU */
+    CHECK_EQ(b[6], 246);
+}
+
+/* Bits between the wire's bytes and the API's words (LSB first), and the read-back rule. */
+static void test_bits(void)
+{
+    uint8_t q[PEER_BUF], by[PEER_BUF];
+    uint16_t w[8], vals[8];
+    t_scenario = "bits";
+    t_hex("CD 6B B2 0E 1B", by); /* 6.1's 37 coils 20..56 (of 11 01 05 ...) */
+    memset(w, 0xAA, sizeof w);
+    mbfb_bytes_to_bits(by, 37, w);
+    CHECK_EQ(w[0], 0x6BCD);
+    CHECK_EQ(w[1], 0x0EB2);
+    CHECK_EQ(w[2], 0x001B);
+    CHECK_EQ(w[3], 0xAAAA); /* nothing written past MBFB_BIT_WORDS(37) = 3 words */
+    CHECK_EQ(MBFB_BIT_WORDS(37), 3);
+    t_hex("CD 6B FD", by); /* 19 coils; padding bits set by a sloppy device: cleared */
+    mbfb_bytes_to_bits(by, 19, w);
+    CHECK_EQ(w[0], 0x6BCD);
+    CHECK_EQ(w[1], 0x0005);
+    t_hex("AC DB 35", by); /* 6.2's 22 inputs 197..218 */
+    mbfb_bytes_to_bits(by, 22, w);
+    CHECK_EQ(w[0], 0xDBAC);
+    CHECK_EQ(w[1], 0x0035);
+    w[0] = 0x1234, w[1] = 0xFF56;
+    mbfb_bits_to_bytes(w, 20, by);
+    CHECK_HEX(by, 3, "34 12 06");
+    /* the read-back shows a write: coils bit for bit, only the written ones */
+    vals[0] = 0x01CD;
+    w[0] = 0xFDCD;
+    CHECK(mbfb_readback_shows(MBFB_FC_WRITE_COILS, 10, vals, w));
+    w[0] = 0x01CC;
+    CHECK(!mbfb_readback_shows(MBFB_FC_WRITE_COILS, 10, vals, w));
+    vals[0] = 0xFFFF, vals[1] = 0x0001, w[0] = 0xFFFF, w[1] = 0xFFF1;
+    CHECK(mbfb_readback_shows(MBFB_FC_WRITE_COILS, 17, vals, w));
+    w[1] = 0;
+    CHECK(!mbfb_readback_shows(MBFB_FC_WRITE_COILS, 17, vals, w));
+    vals[0] = 0x8000, w[0] = 1;
+    CHECK(mbfb_readback_shows(MBFB_FC_WRITE_COIL, 1, vals, w));
+    vals[0] = 0;
+    CHECK(!mbfb_readback_shows(MBFB_FC_WRITE_COIL, 1, vals, w));
+    vals[0] = 7, w[0] = 7;
+    CHECK(mbfb_readback_shows(MBFB_FC_WRITE_SINGLE, 1, vals, w));
+    w[0] = 6;
+    CHECK(!mbfb_readback_shows(MBFB_FC_WRITE_SINGLE, 1, vals, w));
+    /* reply lengths, and the framing of a reply we read ourselves (late replies, RTU over
+     * TCP) from its header */
+    t_hex("11 01 00 13 00 25", q);
+    CHECK_EQ(mbfb_reply_len(q), 3 + 5);
+    t_hex("11 02 00 C4 00 16", q);
+    CHECK_EQ(mbfb_reply_len(q), 3 + 3);
+    t_hex("11 0F 00 13 00 0A 02 CD 01", q);
+    CHECK_EQ(mbfb_reply_len(q), 6);
+    t_hex("11 01 05", by);
+    CHECK_EQ(mbfb_rtu_reply_wire_len(by, 3), 3 + 5 + 2);
+    CHECK_EQ(mbfb_rtu_reply_wire_len(by, 2), -1);
+    t_hex("11 05 00", by);
+    CHECK_EQ(mbfb_rtu_reply_wire_len(by, 2), 8);
+    t_hex("11 8F 02", by);
+    CHECK_EQ(mbfb_rtu_reply_wire_len(by, 2), 5);
+    t_hex("11 07", by);
+    CHECK_EQ(mbfb_rtu_reply_wire_len(by, 2), 0);
 }
 
 static int check_reply_hex(const char *req_hex, const char *rsp_hex)
@@ -150,6 +241,30 @@ static void test_validation(void)
     CHECK_EQ(check_reply_hex("01 03 00 00 00 01", "01 86 03"), MBFB_E_BADREPLY);
     CHECK_EQ(check_reply_hex("01 03 00 00 00 01", "01 83 02 00"), MBFB_E_BADREPLY);
     CHECK_EQ(check_reply_hex("01 03 00 00 00 01", "01 83 00"), MBFB_E_BADREPLY);
+
+    /* coils and discrete inputs */
+    CHECK_EQ(check_reply_hex("11 01 00 13 00 25", "11 01 05 CD 6B B2 0E 1B"), MBFB_OK);
+    CHECK_EQ(check_reply_hex("11 02 00 C4 00 16", "11 02 03 AC DB 35"), MBFB_OK);
+    CHECK_EQ(check_reply_hex("11 05 00 AC FF 00", "11 05 00 AC FF 00"), MBFB_OK);
+    CHECK_EQ(check_reply_hex("11 05 00 AC 00 00", "11 05 00 AC 00 00"), MBFB_OK);
+    CHECK_EQ(check_reply_hex("11 0F 00 13 00 0A 02 CD 01", "11 0F 00 13 00 0A"), MBFB_OK);
+    /* byte count: ceil(37 / 8) = 5, not 2 x 37, not 4 or 6 */
+    CHECK_EQ(check_reply_hex("11 01 00 13 00 25", "11 01 04 CD 6B B2 0E 1B"), MBFB_E_BADREPLY);
+    CHECK_EQ(check_reply_hex("11 01 00 13 00 25", "11 01 06 CD 6B B2 0E 1B"), MBFB_E_BADREPLY);
+    CHECK_EQ(check_reply_hex("11 01 00 13 00 25", "11 01 05 CD 6B B2 0E"), MBFB_E_BADREPLY);
+    CHECK_EQ(check_reply_hex("11 01 00 13 00 25", "11 01 05 CD 6B B2 0E 1B 00"),
+             MBFB_E_BADREPLY);
+    CHECK_EQ(check_reply_hex("11 02 00 C4 00 16", "11 01 03 AC DB 35"), MBFB_E_BADREPLY);
+    /* echoes: FC05 value (FF 00 asked, 00 00 echoed), FC15 address and count */
+    CHECK_EQ(check_reply_hex("11 05 00 AC FF 00", "11 05 00 AC 00 00"), MBFB_E_BADREPLY);
+    CHECK_EQ(check_reply_hex("11 05 00 AC FF 00", "11 05 00 AD FF 00"), MBFB_E_BADREPLY);
+    CHECK_EQ(check_reply_hex("11 0F 00 13 00 0A 02 CD 01", "11 0F 00 13 00 0B"),
+             MBFB_E_BADREPLY);
+    CHECK_EQ(check_reply_hex("11 0F 00 13 00 0A 02 CD 01", "11 0F 00 14 00 0A"),
+             MBFB_E_BADREPLY);
+    CHECK_EQ(check_reply_hex("11 01 00 13 00 25", "11 81 02"), 130);
+    CHECK_EQ(check_reply_hex("11 0F 00 13 00 0A 02 CD 01", "11 8F 04"), 132);
+    CHECK_EQ(check_reply_hex("11 05 00 AC FF 00", "11 8F 02"), MBFB_E_BADREPLY);
 }
 
 static void test_args(void)
@@ -166,7 +281,25 @@ static void test_args(void)
     CHECK_EQ(mbfb_check_args(1, 6, 0, 2, v), MBFB_E_INVAL);
     CHECK_EQ(mbfb_check_args(1, 16, 0, 123, v), MBFB_OK);
     CHECK_EQ(mbfb_check_args(1, 16, 0, 124, v), MBFB_E_INVAL);
-    CHECK_EQ(mbfb_check_args(1, 5, 0, 1, v), MBFB_E_INVAL);
+    CHECK_EQ(mbfb_check_args(1, 7, 0, 1, v), MBFB_E_INVAL);
+    /* bits: FC01/02 1..2000, FC05 one coil with its value, FC15 1..1968 */
+    CHECK_EQ(mbfb_check_args(1, 1, 0, 1, NULL), MBFB_OK);
+    CHECK_EQ(mbfb_check_args(1, 1, 0, MBFB_MAX_READ_BITS, NULL), MBFB_OK);
+    CHECK_EQ(mbfb_check_args(1, 2, 0, 2000, NULL), MBFB_OK);
+    CHECK_EQ(mbfb_check_args(1, 2, 0, 2001, NULL), MBFB_E_INVAL);
+    CHECK_EQ(mbfb_check_args(1, 1, 0, 0, NULL), MBFB_E_INVAL);
+    CHECK_EQ(mbfb_check_args(0, 1, 0, 8, NULL), MBFB_E_INVAL); /* broadcast read */
+    CHECK_EQ(mbfb_check_args(1, 2, 65535, 1, NULL), MBFB_OK);
+    CHECK_EQ(mbfb_check_args(1, 2, 65535, 2, NULL), MBFB_E_INVAL);
+    CHECK_EQ(mbfb_check_args(1, 5, 0, 1, v), MBFB_OK);
+    CHECK_EQ(mbfb_check_args(0, 5, 0, 1, v), MBFB_OK); /* broadcast write */
+    CHECK_EQ(mbfb_check_args(1, 5, 0, 1, NULL), MBFB_E_INVAL);
+    CHECK_EQ(mbfb_check_args(1, 5, 0, 2, v), MBFB_E_INVAL);
+    CHECK_EQ(mbfb_check_args(1, 15, 0, MBFB_MAX_WRITE_BITS, v), MBFB_OK);
+    CHECK_EQ(mbfb_check_args(1, 15, 0, 1969, v), MBFB_E_INVAL);
+    CHECK_EQ(mbfb_check_args(1, 15, 0, 0, v), MBFB_E_INVAL);
+    CHECK_EQ(mbfb_check_args(1, 15, 0, 8, NULL), MBFB_E_INVAL);
+    CHECK_EQ(mbfb_check_args(1, 15, 65530, 7, v), MBFB_E_INVAL);
     CHECK_EQ(mbfb_check_args(1, 3, 65535, 1, NULL), MBFB_OK);
     CHECK_EQ(mbfb_check_args(1, 3, 65535, 2, NULL), MBFB_E_INVAL);
     CHECK_EQ(mbfb_check_args(1, 3, -1, 1, NULL), MBFB_E_INVAL);
@@ -220,6 +353,7 @@ int main(void)
     test_lrc();
     test_requests();
     test_validation();
+    test_bits();
     test_args();
     test_timing();
     test_strerror();

@@ -97,7 +97,7 @@ static void snapshot(void)
     CHECK_EQ(mbfb_plan_set(plan, bad, 1, 0, 0), -MBFB_E_INVAL);
     CHECK_EQ(mbfb_plan_set(plan, bad + 1, 1, 0, 0), -MBFB_E_INVAL);
     CHECK_EQ(mbfb_plan_set(plan, it, 0, 0, 0), -MBFB_E_INVAL);
-    CHECK_EQ(mbfb_plan_set(plan, it, 2, -1, 0), -MBFB_E_INVAL);
+    CHECK_EQ(mbfb_plan_set(plan, it, 2, -2, 0), -MBFB_E_INVAL); /* -1: on demand */
     CHECK_EQ(mbfb_plan_set(999999, it, 2, 0, 0), -MBFB_E_BADHANDLE);
     CHECK_EQ(mbfb_plan_open(mbfb_dev_open(bus, 0)), -MBFB_E_INVAL); /* broadcast */
     CHECK_EQ(peer_count(&P), 0);

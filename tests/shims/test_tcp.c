@@ -1,6 +1,7 @@
 /*
  * test_tcp.c - Modbus TCP (a tcp:// gateway) through libmodbus, against libmodbus's own
- * server on 127.0.0.1 (a peer we did not write): reads, writes, exception, no reply,
+ * server on 127.0.0.1 (a peer we did not write): reads, writes, coils and discrete inputs
+ * (FC01/02/05/15 against its bit tables), exceptions, no reply,
  * a late reply (must not answer the next request: the shims reconnect), a dropped
  * connection (port lost, reopened on the next request).
  */
@@ -65,7 +66,7 @@ int main(void)
 
     t_scenario = "tcp";
     srv = modbus_new_tcp("127.0.0.1", 0); /* port 0: the kernel picks one */
-    map = modbus_mapping_new(0, 0, 100, 100);
+    map = modbus_mapping_new(100, 100, 100, 100);
     listen_fd = modbus_tcp_listen(srv, 1);
     if (srv == NULL || map == NULL || listen_fd < 0 ||
         getsockname(listen_fd, (struct sockaddr *)&a, &alen) != 0) {
@@ -75,6 +76,10 @@ int main(void)
     for (int i = 0; i < 100; i++)
         map->tab_registers[i] = (uint16_t)(0x2000 + i);
     map->tab_input_registers[7] = 0x0707;
+    for (int i = 0; i < 37; i++) /* the application protocol's 6.1: CD 6B B2 0E 1B */
+        map->tab_bits[20 + i] = (uint8_t)((0x1B0EB26BCDull >> i) & 1);
+    for (int i = 0; i < 22; i++) /* 6.2: AC DB 35 */
+        map->tab_input_bits[60 + i] = (uint8_t)((0x35DBACu >> i) & 1);
     pthread_create(&th, NULL, server_main, NULL);
     pthread_detach(th);
 
@@ -101,6 +106,33 @@ int main(void)
     CHECK_EQ(map->tab_registers[99], 2);
     pthread_mutex_unlock(&map_lock);
     CHECK_EQ(t_run(dev, 3, 99, 2, NULL, v, 2), -(MBFB_E_EXCEPTION_BASE + 2));
+
+    /* coils and discrete inputs, packed LSB first into words */
+    CHECK_EQ(t_run(dev, MBFB_FC_READ_COILS, 20, 37, NULL, v, 4), 37);
+    CHECK_EQ(v[0], 0x6BCD);
+    CHECK_EQ(v[1], 0x0EB2);
+    CHECK_EQ(v[2], 0x001B);
+    CHECK_EQ(t_run(dev, MBFB_FC_READ_DISCRETE, 60, 22, NULL, v, 4), 22);
+    CHECK_EQ(v[0], 0xDBAC);
+    CHECK_EQ(v[1], 0x0035);
+    v[0] = 1;
+    CHECK_EQ(t_run(dev, MBFB_FC_WRITE_COIL, 5, 1, v, NULL, 0), 0);
+    v[0] = 0x01CD;
+    CHECK_EQ(t_run(dev, MBFB_FC_WRITE_COILS, 80, 10, v, NULL, 0), 0);
+    pthread_mutex_lock(&map_lock);
+    CHECK_EQ(map->tab_bits[5], 1);
+    for (int i = 0; i < 10; i++)
+        CHECK_EQ(map->tab_bits[80 + i], (0x01CD >> i) & 1);
+    pthread_mutex_unlock(&map_lock);
+    v[0] = 0;
+    int h = mbfb_post_write(dev, MBFB_FC_WRITE_COIL, 5, 1, v, MBFB_WRITE_ONCE);
+    CHECK(h > 0);
+    CHECK_EQ(t_run(dev, MBFB_FC_READ_COILS, 0, 16, NULL, v, 1), 16);
+    CHECK_EQ(v[0] & (1 << 5), 0); /* the ONCE write, posted first, went first */
+    CHECK_EQ(t_wait(h), MBFB_REQ_DONE);
+    CHECK_EQ(mbfb_take(h, NULL, 0), 0);
+    CHECK_EQ(t_run(dev, MBFB_FC_READ_COILS, 95, 10, NULL, v, 1), -(MBFB_E_EXCEPTION_BASE + 2));
+    CHECK_EQ(t_run(dev, MBFB_FC_WRITE_COILS, 95, 10, v, NULL, 0), -(MBFB_E_EXCEPTION_BASE + 2));
 
     __atomic_store_n(&srv_mode, SRV_SILENT, __ATOMIC_RELEASE);
     CHECK_EQ(t_run(dev, 3, 0, 1, NULL, v, 1), -MBFB_E_TIMEOUT);
