@@ -164,6 +164,13 @@ def located_name(loc: str) -> str:
     return "oplc_" + loc[1:].replace(".", "_")
 
 
+def located_key(decl: str):
+    """Declarations by area, then address: '%IX100.3' -> ('IX', 100, 3)."""
+    loc = decl.split(" AT ")[1].split(" ")[0]
+    parts = loc[3:].split(".")
+    return loc[1:3], int(parts[0]), int(parts[1]) if len(parts) > 1 else 0
+
+
 def comment(text: str) -> str:
     """Text safe inside (* *)."""
     return text.replace("(*", "( *").replace("*)", "* )")
@@ -233,6 +240,11 @@ class Program:
         self.devices, self.source, self.flavour = devices, source, flavour
         self.names = names or {}        # located address -> (the user's variable, its type)
         self.located, self.vars, self.status, self.body = [], [], [], []
+        self.ports = {}                 # port -> its STRING variable (one per port: change it there)
+        for dev in devices:
+            if dev.port not in self.ports:
+                st_string(dev.port, dev.where)
+                self.ports[dev.port] = f"oplc_port{len(self.ports)}"
         for i, dev in enumerate(devices):
             self.device(i, dev)
 
@@ -246,7 +258,7 @@ class Program:
 
     def device(self, i: int, dev):
         d = f"dev{i}"
-        port = st_string(dev.port, dev.where)
+        port = self.ports[dev.port]
         kind = f"RTU {dev.port} {dev.baud} {dev.data_bits}{dev.parity}{dev.stop_bits}" \
             if dev.serial else dev.port
         self.vars.append(f"    (* device {i}: {comment(dev.name)}, {comment(kind)}, slave "
@@ -314,8 +326,10 @@ class Program:
     def var_blocks(self) -> str:
         out = []
         if self.located:
-            out += ["  VAR", *self.located, "  END_VAR"]
-        out += ["  VAR", *self.vars, "  END_VAR", "  VAR  (* each device's status *)",
+            out += ["  VAR", *sorted(self.located, key=located_key), "  END_VAR"]
+        ports = [f"    {var} : STRING := {st_string(port, self.source)};"
+                 for port, var in self.ports.items()]
+        out += ["  VAR", *ports, *self.vars, "  END_VAR", "  VAR  (* each device's status *)",
                 *self.status, "  END_VAR"]
         return "\n".join(out) + "\n"
 
