@@ -68,8 +68,12 @@ template <class T> using ctype_t = typename ctype<typename std::remove_cv<T>::ty
 
 template <class T>
 inline void to_c(const strucpp::IECVar<T> &v, T &c) { c = v.get(); }
+/* Set only when the bits differ: == would keep +0.0 for a pragma's -0.0 and set a NaN every time. */
 template <class T>
-inline void from_c(const T &c, strucpp::IECVar<T> &v) { if (!(c == v.get())) v.set(c); }
+inline void from_c(const T &c, strucpp::IECVar<T> &v) {
+    T now = v.get();
+    if (std::memcmp(&c, &now, sizeof c) != 0) v.set(c);
+}
 
 template <class S>
 inline void str_to_c(const S &s, mstring &c) {
