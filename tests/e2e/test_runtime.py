@@ -22,6 +22,7 @@ Z1PV, Z1SV, Z1ERR, Z2PV, Z2SV, Z2ERR, COUNT, COUNTERR, BEAT, Z1SPSTATUS, Z2SPSTA
 PRODUCTHELD, Z1RSTATUS = 11, 12
 Z2SPREQ, PRODUCTREQ = 1025, 1026
 C_Z1VALID, C_Z2VALID, C_Z2QUIET, C_PARTSVALID, C_ANY = 0, 3, 5, 6, 8
+METER, METERERR, C_METERVALID = 16, 20, 9       # HR 16..19 V x10, A x100, W, kWh x10
 
 
 @contextlib.contextmanager
@@ -99,6 +100,23 @@ def test_plc_shows_the_simulators_values(plant):
     c = hr(client, COUNT)[0]
     assert 0 < c <= sim.ctl("get", addr=3, reg="VALUE")["raw"] & 0xFFFF
     assert hr(client, Z1ERR)[0] == hr(client, Z2ERR)[0] == hr(client, COUNTERR)[0] == 0
+
+
+def test_energy_meter_beside_the_instruments(plant):
+    """The meter (a generic device: IEEE 754 REALs, CDAB) polled by MB_Poll on the instruments'
+    line, decoded by MB_TO_REAL: its values as the simulator holds them, changed ones too."""
+    sim, plc, client = plant
+    want = [round(10 * sim.ctl("get", addr=4, reg="voltage")["eng"]),
+            round(100 * sim.ctl("get", addr=4, reg="current")["eng"]),
+            round(sim.ctl("get", addr=4, reg="power")["eng"]),
+            round(10 * sim.ctl("get", addr=4, reg="energy")["eng"])]
+    assert want == [2304, 1250, 2880, 12345]                 # energy_meter.json
+    wait(lambda: coils(client, 10)[C_METERVALID] and hr(client, METER, 4) == want, 30,
+         "the meter's values at HR 16..19")
+    assert hr(client, METERERR)[0] == 0
+    sim.ctl("set", addr=4, reg="power", eng=1500.5)
+    wait(lambda: hr(client, METER + 2)[0] in (1500, 1501), 30, "the new power at HR 18")
+    assert all(coils(client)[i] for i in (C_Z1VALID, C_Z2VALID, C_PARTSVALID))
 
 
 def test_set_point_reaches_the_instrument_and_pv_follows(plant):
