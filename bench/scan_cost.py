@@ -7,8 +7,10 @@
 Not a test: it prints figures (st_src/README.md, "Scan cost"). For each variant (a commit
 exported with `git archive`, or the working tree: bench/wire_pace.py's Variant) and each
 build of the shims (--shims: O0 = CMAKE_BUILD_TYPE Debug, as OpenPLC compiles them with the
-program; O2 = RelWithDebInfo), for Counter_MTS9 (MT-S9, 115200 8N1), TempCtrl_MVD94 and
-FDC_Controller (19200 8N2), each in wire_pace's `device_program` (one block, task 20 ms)
+program; O2 = RelWithDebInfo), for Counter_MTS9 (MT-S9, 115200 8N1), TempCtrl_MVD94,
+FDC_Controller and MB_Poll (19200 8N2; MB_Poll reads coils, holding registers, discrete inputs
+and input registers of the simulator's generic device bench/poll_device.json, 5 words), each
+in wire_pace's `device_program` (one block, task 20 ms)
 with `Period := T#30s` ("steady": no new snapshot after the first refresh), `T#1s`
 ("published": a snapshot every second, so `Age` and `SettingsAge` are computed in the scans
 between, the steady scan of a block whose data are published) and `T#0s` ("pick-up"): the program is built as OpenPLC builds it (iec2c -f -l -p -r -R -a, g++ -O0,
@@ -50,9 +52,14 @@ sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import wire_pace as wp  # noqa: E402
 
 # (block, simulator device, baud, format)
+POLL_DEVICE = os.path.join(os.path.dirname(os.path.abspath(__file__)), "poll_device.json")
 BLOCKS = (("Counter_MTS9", "mts9:1", 115200, "8N1"),
           ("TempCtrl_MVD94", "mvd94:1", 19200, "8N2"),
-          ("FDC_Controller", "fdc100:1", 19200, "8N2"))
+          ("FDC_Controller", "fdc100:1", 19200, "8N2"),
+          ("MB_Poll", f"generic:1:file={POLL_DEVICE}", 19200, "8N2"))
+# a block's inputs besides Enable, Port, SlaveId, Line, Period: MB_Poll's four ranges, mixed
+INPUTS = {"MB_Poll": ", Fc1 := 1, Addr1 := 0, Count1 := 20, Fc2 := 3, Addr2 := 0, Count2 := 10, "
+                     "Fc3 := 2, Addr3 := 10, Count3 := 40, Fc4 := 4, Addr4 := 100, Count4 := 5"}
 MODES = (("steady", "T#30s"), ("published", "T#1s"), ("pick-up", "T#0s"))
 SHIMS = {"O0": "Debug", "O2": "RelWithDebInfo"}
 
@@ -228,7 +235,8 @@ def main() -> int:
                     for mode, period in MODES:
                         key = f"{block}-{mode}"
                         port = os.path.join(tmp, f"{v.name}-{key}")
-                        exe = v.compile(key, wp.device_program(block, port, baud, fmt, period))
+                        exe = v.compile(key, wp.device_program(block, port, baud, fmt, period,
+                                                               INPUTS.get(block, "")))
                         wp.log(f"[{v.name}] {block} {mode}: {args.skip_scans} + {args.scans} scans under callgrind ...")
                         res[(name, o, block, mode)] = measure(v, exe, block, dev, baud, fmt, port, tmp, args)
                 shutil.rmtree(v.dir)

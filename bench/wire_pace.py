@@ -180,14 +180,16 @@ END_CONFIGURATION
 """
 
 
-def device_program(block: str, port: str, baud: int, fmt: str, period: str = "T#0s") -> str:
+def device_program(block: str, port: str, baud: int, fmt: str, period: str = "T#0s",
+                   inputs: str = "") -> str:
+    """One block on `port`; `inputs`: more of its inputs (", Fc1 := 3, ...": MB_Poll's ranges)."""
     return f"""
 PROGRAM main
   VAR
     l : MB_LINE := (Baud := {baud}, Parity := 'N', StopBits := {fmt[2]});
     dev : {block};
   END_VAR
-  dev(Enable := TRUE, Port := '{port}', SlaveId := 1, Line := l, Period := {period});
+  dev(Enable := TRUE, Port := '{port}', SlaveId := 1, Line := l, Period := {period}{inputs});
   IF dev.Valid AND dev.Age = T#0s THEN {{{{ wp_pub(0); }}}} END_IF;
 END_PROGRAM
 """ + CONFIG

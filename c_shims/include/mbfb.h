@@ -297,7 +297,7 @@ int mbfb_chain_held(int req);
  * (the block that opened the plan); other plans, devices and buses are independent. */
 #define MBFB_PLAN_MAX_ITEMS 4   /* reads per refresh                                   */
 #define MBFB_PLAN_MAX_WORDS 125 /* all items' words together (one IEC MB_REGS)         */
-#define MBFB_PERIOD_ON_DEMAND (-1) /* period_ms of mbfb_plan_set: a refresh when set and
+#define MBFB_PERIOD_ON_DEMAND -1 /* period_ms of mbfb_plan_set: a refresh when set and
                                    then only when triggered (mbfb_plan_trigger)        */
 #define MBFB_TIER_EVERY 0       /* read in every refresh                               */
 #define MBFB_TIER_SLOW  1       /* read when the slow tier is due: every slow period,

@@ -10,7 +10,8 @@ or with transport=rtu-tcp as an RTU-over-TCP gateway on 127.0.0.1 (the port is t
 'tcp://127.0.0.1:PORT'); the program gets it in MBFB_TEST_PORT and the control socket in
 MBFB_SIM_CONTROL. transport=pymodbus-mvd94 serves the program no simulator but pymodbus's RTU
 framer on a TCP server at 127.0.0.1 with an MV-D94's registers (tests/shims/pymodbus_peer.py,
-a peer we did not write; no control socket). The
+a peer we did not write; no control socket); transport=pymodbus-mvd94+poll adds its generic
+slave 2 (coils, discrete inputs, registers). The
 simulator is stopped by pid whatever happens (simctl.Simulator context manager).
 """
 from __future__ import annotations
@@ -39,8 +40,9 @@ def sim_spec(st_path: str) -> dict:
             "pace": "0"}
     for item in m.group(1).split():
         key, _, value = item.partition("=")
-        if key == "device":
-            spec["devices"].append(value)
+        if key == "device":   # a generic device's file=NAME: a file beside the test
+            spec["devices"].append(re.sub(r"(?<=[:,])file=(?!/)([^,]+)",
+                                          lambda m: "file=" + os.path.join(HERE, m.group(1)), value))
         elif key in ("format", "baud", "time-scale", "transport", "pace"):
             spec[key] = value
         else:
@@ -82,8 +84,8 @@ def main() -> int:
     if args.framing:
         spec["devices"] = [d + (",framing=" if d.count(":") > 1 else ":framing=") + args.framing
                            if d.startswith("mts9:") else d for d in spec["devices"]]
-    if spec["transport"] == "pymodbus-mvd94":
-        return run_pymodbus(args)
+    if spec["transport"].startswith("pymodbus-"):
+        return run_pymodbus(args, spec["transport"][len("pymodbus-"):].split("+"))
     tmp = tempfile.mkdtemp(prefix="fbtest-")
     try:
         link = os.path.join(tmp, "ttySIM")
@@ -138,10 +140,11 @@ def check_edges(path: str, mode: str, fmt: str, baud: int) -> int:
 T_DIR_BEFORE_US, T_DIR_AFTER_US = 200, 100   # the delays t_direction.st sets
 
 
-def run_pymodbus(args) -> int:
-    """The program against pymodbus's RTU-over-TCP server (stopped by pid whatever happens)."""
+def run_pymodbus(args, kinds) -> int:
+    """The program against pymodbus's RTU-over-TCP server with the slaves `kinds` (mvd94, or
+    mvd94+poll: pymodbus_peer.py), stopped by pid whatever happens."""
     peer = os.path.join(os.path.dirname(HERE), "shims", "pymodbus_peer.py")
-    proc = subprocess.Popen([sys.executable, peer, "rtu-tcp", "mvd94"], stdout=subprocess.PIPE,
+    proc = subprocess.Popen([sys.executable, peer, "rtu-tcp"] + kinds, stdout=subprocess.PIPE,
                             text=True)
     try:
         ready = proc.stdout.readline().split()

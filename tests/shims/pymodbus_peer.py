@@ -2,13 +2,16 @@
 test_rtutcp.c.
 
 usage: pymodbus_peer.py PORT rtu|ascii     serial server on PORT; prints READY
-       pymodbus_peer.py rtu-tcp [mvd94]    RTU framer on a TCP server at 127.0.0.1, any free
-                                           port (RTU over TCP); prints READY PORT
+       pymodbus_peer.py rtu-tcp [mvd94 [poll]]  RTU framer on a TCP server at 127.0.0.1, any
+                                           free port (RTU over TCP); prints READY PORT
 Slave 1: holding register at PDU address a = 0x3001 + a, input register = 0x4001 + a
 (pymodbus's sequential block is 1-based), 100 of each; coil a is ON when (a + 1) % 3 == 0,
-discrete input a when (a + 1) % 5 < 2, 100 of each; other addresses give exception 2. With `mvd94`, slave 1 holds an MV-D94's map instead (MVD94_HR: holding
-registers 0x00..0x21 at the factory settings with SV 123.4 at one decimal; PV 27.5 at input
-register 0x1000), for a device block (tests/fb t_rtutcp_pymodbus.st). Serves until killed.
+discrete input a when (a + 1) % 5 < 2, 100 of each; other addresses give exception 2.
+With `mvd94`, slave 1 holds an MV-D94's map instead (MVD94_HR: holding registers 0x00..0x21 at the factory settings with SV 123.4 at one decimal; PV 27.5 at input
+register 0x1000), for a device block (tests/fb t_rtutcp_pymodbus.st). With `poll` too, slave 2
+is a generic device for MB_Poll (tests/fb t_poll_pymodbus.st): POLL_COILS at coils 0..19,
+POLL_INPUTS at discrete inputs 10..49, 1..10 at holding registers 0..9, POLL_IR at input
+registers 100..104, coils and holding registers writable. Serves until killed.
 """
 import asyncio
 import sys
@@ -23,7 +26,12 @@ from pymodbus.server import ModbusTcpServer, StartSerialServer
 MVD94_HR = [1234, 0, 0, 10, 10, 10, 100, 30, 20, 1, 1, 1, 1, 0x20, 1, 0x0C, 0x11, 0x14,
             0xF831, 9999, 0, 0x30, 0x16, 0x31, 0x16, 0x32, 0x16, 1, 0x1E, 0, 0, 3000, 0, 0]
 
-if sys.argv[1:] == ["rtu-tcp", "mvd94"]:
+# slave 2 of `poll` (tests/fb/poll_device.json holds the same for the simulator)
+POLL_COILS = [1, 0, 1, 1, 0, 0, 0, 1, 1, 0, 0, 0, 0, 0, 0, 0, 0, 1, 1, 0]
+POLL_INPUTS = [0, 1, 1, 0, 1] + [0] * 11 + [1] + [0] * 22 + [1]
+POLL_IR = [11, 12, 13, 14, 65535]
+
+if sys.argv[1:3] == ["rtu-tcp", "mvd94"]:
     hr = ModbusSequentialDataBlock(0, [0] + MVD94_HR)
     ir = ModbusSequentialDataBlock(0x1000, [0, 275])
     bits = {}
@@ -33,7 +41,13 @@ else:
     # bits (mbfb_test.h T_PM_COIL, T_PM_INPUT): index i of the 1-based blocks
     bits = {"co": ModbusSequentialDataBlock(0, [i % 3 == 0 for i in range(101)]),
             "di": ModbusSequentialDataBlock(0, [i % 5 < 2 for i in range(101)])}
-ctx = ModbusServerContext(slaves={1: ModbusSlaveContext(hr=hr, ir=ir, **bits)}, single=False)
+slaves = {1: ModbusSlaveContext(hr=hr, ir=ir, **bits)}
+if sys.argv[3:] == ["poll"]:   # each block's first element is address -1 (1-based blocks)
+    slaves[2] = ModbusSlaveContext(co=ModbusSequentialDataBlock(0, [0] + POLL_COILS),
+                                   di=ModbusSequentialDataBlock(10, [0] + POLL_INPUTS),
+                                   hr=ModbusSequentialDataBlock(0, [0] + list(range(1, 11))),
+                                   ir=ModbusSequentialDataBlock(100, [0] + POLL_IR))
+ctx = ModbusServerContext(slaves=slaves, single=False)
 
 
 async def rtu_over_tcp():
