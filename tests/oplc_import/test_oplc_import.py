@@ -250,6 +250,13 @@ def test_into_the_users_program(tmp_path):
     user.write_text(USER.replace("level AT %IW100 : INT", "level AT %IW100 : REAL"))
     res = run(os.path.join(FIX, "plant.cfg"), "--into", str(user), "-o", str(out) + "2")
     assert res.returncode == 2 and "OI-12" in res.stderr and "level AT %IW100 : REAL" in res.stderr
+    # declared as a global of the configuration: not in a program, one line
+    user.write_text(USER.replace("    level AT %IW100 : INT;\n", "").replace(
+        "  RESOURCE Res0 ON PLC", "  VAR_GLOBAL\n    level AT %IW100 : INT;\n  END_VAR\n"
+        "  RESOURCE Res0 ON PLC"))
+    res = run(os.path.join(FIX, "plant.cfg"), "--into", str(user), "-o", str(out) + "3")
+    assert res.returncode == 2 and "level AT %IW100 is declared outside a PROGRAM" in res.stderr
+    assert len(res.stderr.splitlines()) == 1
 
 
 # ----- compile check: matiec as OpenPLC runs it, then the C as C++ -----

@@ -373,6 +373,13 @@ def user_names(text: str, served: set, where: str) -> tuple[dict, str | None, li
                 continue
             names[loc] = (name, typ)
             owners.add(pou.group(1))
+    inside = [(m.start(2), m.end(2)) for m in POU_RE.finditer(clean)]
+    for m in DECL_RE.finditer(clean):
+        loc = m.group(2).upper()
+        if loc in served and not any(a <= m.start() < b for a, b in inside):
+            problems.append(Problem("OI-12", where, f"{m.group(1)} AT {loc} is declared outside "
+                                    "a PROGRAM (VAR_GLOBAL?): the converted part fills the "
+                                    "addresses a PROGRAM declares"))
     if len(owners) > 1:
         problems.append(Problem("OI-12", where, f"the served addresses are declared in several "
                                 f"programs ({', '.join(sorted(owners))}): the converted part "
