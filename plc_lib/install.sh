@@ -7,6 +7,9 @@
 #   adds   webserver/lib/mbfb.txt, webserver/lib/mbfb.manifest, webserver/core/mbfb*.{h,cpp}
 #   edits  webserver/lib/standard_FB.txt and webserver/core/c_blocks.h: one marker-delimited block
 # Idempotent: running it again changes nothing (or updates to the current sources).
+# After a web-upload bundle (mkbundle.sh) it takes over the files the bundle wrote that still
+# hold what it wrote (webserver/core/mbfb_bundle.sha256); any other existing mbfb* file that
+# differs from ours stops it, with nothing changed.
 # Without --dist it generates the files first (plc_lib/mkdist.sh) with that OpenPLC's own iec2c.
 # Undo with plc_lib/uninstall.sh OPENPLC_PATH.
 set -eu
@@ -28,16 +31,24 @@ if [ -z "$dist" ]; then
 fi
 [ -f "$dist/MANIFEST" ] || die "$dist has no MANIFEST (make it with plc_lib/mkdist.sh)"
 
-# Refuse to overwrite a file we did not install (not in our manifest) unless it is identical.
+# Refuse to overwrite a file we did not install (not in our manifest) or a bundle did not write
+# (bundle_written), unless it is identical.
 old=$oplc/$MANIFEST
+bundle_written "$oplc" > "$tmp/bundled"
 while read -r f; do
     case $f in webserver/lib/mbfb*|webserver/core/mbfb*) ;; *) die "bad manifest entry $f" ;; esac
-    if [ -e "$oplc/$f" ] && ! grep -qxF "$f" "$old" 2>/dev/null && ! cmp -s "$dist/$f" "$oplc/$f"; then
+    if [ -e "$oplc/$f" ] && ! grep -qxF "$f" "$old" 2>/dev/null && ! grep -qxF "$f" "$tmp/bundled" &&
+            ! cmp -s "$dist/$f" "$oplc/$f"; then
         die "$oplc/$f exists and was not installed by us: not overwriting it"
     fi
 done < "$dist/MANIFEST"
 
 changed=0
+if [ -f "$oplc/$BUNDLE_SUMS" ]; then
+    adopt_bundle "$oplc" "$tmp/bundled"
+    changed=1
+    say "took over the $(wc -l < "$tmp/bundled") files a web-upload bundle wrote; from now on upload your program itself, not its bundle (the blocks would be defined twice)"
+fi
 # Files a previous version installed that this one no longer has.
 if [ -f "$old" ]; then
     while read -r f; do

@@ -2,6 +2,8 @@
 # uninstall.sh OPENPLC_PATH - remove what plc_lib/install.sh added to an OpenPLC v3 installation.
 # Removes the files listed in webserver/lib/mbfb.manifest and our marker blocks in
 # standard_FB.txt and c_blocks.h, restoring those two files byte for byte. Idempotent.
+# Also removes what a web-upload bundle (mkbundle.sh) wrote, where it still holds what the bundle
+# wrote: c_blocks.h is then OpenPLC's shipped one again.
 # Programs that use the blocks no longer compile afterwards.
 set -eu
 prog=uninstall.sh
@@ -15,6 +17,11 @@ tmp=$(mktemp -d)
 trap 'rm -rf "$tmp"' EXIT INT TERM
 
 changed=0
+if [ -f "$oplc/$BUNDLE_SUMS" ]; then
+    bundle_written "$oplc" > "$tmp/bundled"
+    adopt_bundle "$oplc" "$tmp/bundled"
+    changed=1
+fi
 for f in webserver/lib/standard_FB.txt webserver/core/c_blocks.h; do
     strip_block "$oplc/$f" > "$tmp/x"
     if replace_if_changed "$oplc/$f" "$tmp/x"; then changed=1; fi

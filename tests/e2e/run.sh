@@ -13,6 +13,10 @@ home=${OPENPLC_HOME:-/opt/OpenPLC_v3}
 [ -x "$home/webserver/iec2c" ] && [ -x "$home/webserver/core/glue_generator" ] ||
     skip "OpenPLC v3 not found at $home (set OPENPLC_HOME)"
 [ -f "${MBFB_DIST:-}/MANIFEST" ] || skip "generated library missing (${MBFB_DIST:-MBFB_DIST unset}): needs st_src/ and iec2c"
+case $(basename "$1") in
+    test_web.py) [ -x "$home/.venv/bin/python3" ] ||
+        skip "OpenPLC's webserver Python ($home/.venv, made by its install.sh) not found" ;;
+esac
 export OPENPLC_HOME=$home
 exec "$here/../../tools/openplc/netns.sh" "${MBFB_PYTHON:?}" -m pytest -q -p no:cacheprovider --rootdir "$here" \
     --basetemp "$PWD/pytest-$(basename "$1" .py)" "$@"
