@@ -24,6 +24,7 @@ import os
 import re
 import shutil
 import signal
+import struct
 import sys
 import tempfile
 import time
@@ -51,7 +52,8 @@ TREND_SECONDS = 180     # the trend shows the last 3 minutes
 TREND_WIDTH, TREND_HEIGHT = 60, 8
 # The energy meter (slave 4, examples/heat_treat_st/energy_meter.json): its power follows zone
 # 1's heater output MV1 (a HEATER_W heater) on top of the line's BASE_W, at MAINS_V; the energy
-# adds up in plant time (--time-scale). The PLC publishes it at HR 16..20, coil 9.
+# adds up in plant time (--time-scale). The PLC publishes its registers at HR 16..23 (REALs, low
+# word first), its ErrorID at HR 24, its Valid at coil 9.
 HEATER_W, BASE_W, MAINS_V = 6000.0, 400.0, 230.0
 MODBUS_EXCEPTIONS = {1: "illegal function", 2: "illegal data address", 3: "illegal data value",
                      4: "device failure", 5: "acknowledge", 6: "device busy"}
@@ -59,6 +61,11 @@ MODBUS_EXCEPTIONS = {1: "illegal function", 2: "illegal data address", 3: "illeg
 
 def s16(v):
     return v - 65536 if v >= 32768 else v
+
+
+def real_cdab(lo, hi):
+    """An IEEE 754 REAL from two registers, low word first (as the meter sends it)."""
+    return struct.unpack(">f", struct.pack(">HH", hi, lo))[0]
 
 
 def error_table(path=os.path.join(ROOT, "c_shims", "include", "mbfb.h")):
@@ -152,10 +159,11 @@ def screen(hr, coils, sim, t0, title, where, trend, note):
     status = ("ok" if coils[6] else "no data") + (f", {code_name(hr[7])}" if hr[7] else "")
     codes.add(hr[7])
     out.append(f"{'Parts   MT-S9   #3':20}{'count':>9}{hr[6]:9d}  {status:26.26}{'QUIET' if coils[7] else '-'}")
-    status = ("ok" if coils[9] else "no data") + (f", {code_name(hr[20])}" if hr[20] else "")
-    codes.add(hr[20])
-    out.append(f"{'Energy  meter   #4':20}{s16(hr[16]) / 10:7.1f} V{s16(hr[17]) / 100:7.2f} A"
-               f"{hr[18] / 1000:7.2f} kW{hr[19] / 10:9.1f} kWh  {status}")
+    status = ("ok" if coils[9] else "no data") + (f", {code_name(hr[24])}" if hr[24] else "")
+    codes.add(hr[24])
+    volts, amps, watts, kwh = (real_cdab(hr[i], hr[i + 1]) for i in (16, 18, 20, 22))
+    out.append(f"{'Energy  meter   #4':20}{volts:7.1f} V{amps:7.2f} A"
+               f"{watts / 1000:7.2f} kW{kwh:9.1f} kWh  {status}")
     sp = []
     for zone, st in ((1, hr[9]), (2, hr[10])):
         codes.add(st)
@@ -175,7 +183,7 @@ def screen(hr, coils, sim, t0, title, where, trend, note):
     out += ["", "codes now: " + ("none" if not codes - {0} else
                                  "; ".join(code_meaning(c) for c in sorted(codes - {0})))]
     out += ["legend: PV measured, SV set point (°C); count in parts; ok = the block's Valid;",
-            "  the meter: read by MB_Poll (input registers 0..7), four REALs by MB_TO_REAL (CDAB);",
+            "  the meter: read by MB_Poll (input registers 0..7), published as read, four REALs (CDAB);",
             "  alarms: OUT OF BAND = PV more than 10 °C from SV for 5 s, QUIET = no valid data",
             "  for 3 s; E<n> = the block's ErrorID (c_shims/include/mbfb.h, st_src/README.md)", "",
             note]
@@ -328,7 +336,7 @@ def show(client, sim, title, where, seconds, time_scale=1.0):
     trend = Trend()
     while not seconds or time.monotonic() - t0 < seconds:
         try:
-            hr, coils = client.hr(0, 21), client.coils(10)
+            hr, coils = client.hr(0, 25), client.coils(10)
         except Exception as e:  # a PLC that stops answering is shown, not a traceback
             sys.stdout.write(f"\033[H\033[2J{title}: no answer ({e}); retrying\n")
             sys.stdout.flush()
