@@ -24,6 +24,7 @@ import os
 import re
 import shutil
 import signal
+import struct
 import sys
 import tempfile
 import time
@@ -49,12 +50,22 @@ DOWNLOADING = 0xFFFF
 BUS_PORT_VAR = "CONFIG0.RES0.HEATTREAT.BUSPORT"  # the example's BusPort (its CONFIGURATION)
 TREND_SECONDS = 180     # the trend shows the last 3 minutes
 TREND_WIDTH, TREND_HEIGHT = 60, 8
+# The energy meter (slave 4, examples/heat_treat_st/energy_meter.json): its power follows zone
+# 1's heater output MV1 (a HEATER_W heater) on top of the line's BASE_W, at MAINS_V; the energy
+# adds up in plant time (--time-scale). The PLC publishes its registers at HR 16..23 (REALs, low
+# word first), its ErrorID at HR 24, its Valid at coil 9.
+HEATER_W, BASE_W, MAINS_V = 6000.0, 400.0, 230.0
 MODBUS_EXCEPTIONS = {1: "illegal function", 2: "illegal data address", 3: "illegal data value",
                      4: "device failure", 5: "acknowledge", 6: "device busy"}
 
 
 def s16(v):
     return v - 65536 if v >= 32768 else v
+
+
+def real_cdab(lo, hi):
+    """An IEEE 754 REAL from two registers, low word first (as the meter sends it)."""
+    return struct.unpack(">f", struct.pack(">HH", hi, lo))[0]
 
 
 def error_table(path=os.path.join(ROOT, "c_shims", "include", "mbfb.h")):
@@ -148,6 +159,11 @@ def screen(hr, coils, sim, t0, title, where, trend, note):
     status = ("ok" if coils[6] else "no data") + (f", {code_name(hr[7])}" if hr[7] else "")
     codes.add(hr[7])
     out.append(f"{'Parts   MT-S9   #3':20}{'count':>9}{hr[6]:9d}  {status:26.26}{'QUIET' if coils[7] else '-'}")
+    status = ("ok" if coils[9] else "no data") + (f", {code_name(hr[24])}" if hr[24] else "")
+    codes.add(hr[24])
+    volts, amps, watts, kwh = (real_cdab(hr[i], hr[i + 1]) for i in (16, 18, 20, 22))
+    out.append(f"{'Energy  meter   #4':20}{volts:7.1f} V{amps:7.2f} A"
+               f"{watts / 1000:7.2f} kW{kwh:9.1f} kWh  {status}")
     sp = []
     for zone, st in ((1, hr[9]), (2, hr[10])):
         codes.add(st)
@@ -167,6 +183,7 @@ def screen(hr, coils, sim, t0, title, where, trend, note):
     out += ["", "codes now: " + ("none" if not codes - {0} else
                                  "; ".join(code_meaning(c) for c in sorted(codes - {0})))]
     out += ["legend: PV measured, SV set point (°C); count in parts; ok = the block's Valid;",
+            "  the meter: read by MB_Poll (input registers 0..7), published as read, four REALs (CDAB);",
             "  alarms: OUT OF BAND = PV more than 10 °C from SV for 5 s, QUIET = no valid data",
             "  for 3 s; E<n> = the block's ErrorID (c_shims/include/mbfb.h, st_src/README.md)", "",
             note]
@@ -179,11 +196,37 @@ def sim_lines(sim):
         z1 = [sim.ctl("get", addr=1, reg=r)["eng"] for r in ("PV", "SP1", "MV1")]
         z2 = sim.ctl("get", addr=2, reg="PV")["eng"], sim.ctl("get", addr=2, reg="SV")["eng"]
         n = sim.ctl("get", addr=3, reg="VALUE")["raw"]
+        m = [sim.ctl("get", addr=4, reg=r)["eng"] for r in ("voltage", "current", "power", "energy")]
         return [f"FDC-100 PV {z1[0]:.1f} SP1 {z1[1]:.1f}   MV-D94 PV {z2[0]:.1f} SV {z2[1]:.1f}   "
                 f"MT-S9 count {n}",
+                f"meter {m[0]:.1f} V {m[1]:.2f} A {m[2] / 1000:.2f} kW {m[3]:.1f} kWh",
                 f"(°C; the FDC-100's heater output MV1 {z1[2]:.1f} %; count in parts)"]
     except Exception as e:  # the display must not die on a control hiccup
         return [f"(simulator: {e})"]
+
+
+class MeterPlant:
+    """The energy meter's readings, played in the simulator: power from zone 1's heater output,
+    current from power and voltage, energy added up in plant time."""
+
+    def __init__(self, sim, time_scale):
+        self.sim, self.scale, self.last, self.kwh = sim, time_scale, None, None
+
+    def step(self):
+        try:
+            now = time.monotonic()
+            if self.kwh is None:
+                self.kwh = self.sim.ctl("get", addr=4, reg="energy")["eng"]
+            mv1 = self.sim.ctl("get", addr=1, reg="MV1")["eng"]
+            watts = BASE_W + HEATER_W * max(0.0, min(100.0, mv1)) / 100.0
+            if self.last is not None:
+                self.kwh += watts / 1000.0 * (now - self.last) * self.scale / 3600.0
+            self.last = now
+            for reg, value in (("voltage", MAINS_V), ("current", watts / MAINS_V),
+                               ("power", watts), ("energy", self.kwh)):
+                self.sim.ctl("set", addr=4, reg=reg, eng=value)
+        except Exception:  # pylint: disable=broad-except  (the screen shows the simulator's state)
+            pass
 
 
 @contextlib.contextmanager
@@ -275,7 +318,7 @@ def main():
         with Simulator(oplc.EXAMPLE_DEVICES, link=bus, time_scale=args.time_scale) as sim:
             print(f"simulator on {sim.port} ({bus})", flush=True)
             with backend(tmp, bus) as (client, title, where):
-                show(client, sim, title, where, args.seconds)
+                show(client, sim, title, where, args.seconds, args.time_scale)
     except KeyboardInterrupt:
         pass
     finally:
@@ -283,15 +326,17 @@ def main():
     print("\nstopped: PLC and simulator ended, temp files removed.")
 
 
-def show(client, sim, title, where, seconds):
-    """The live screen every 0.5 s, playing the operator, until Ctrl-C or seconds."""
+def show(client, sim, title, where, seconds, time_scale=1.0):
+    """The live screen every 0.5 s, playing the operator and the meter, until Ctrl-C or
+    seconds."""
     t0 = time.monotonic()
+    meter = MeterPlant(sim, time_scale)
     t_op, step, note = None, -1, "operator: waiting for both zones to be valid"
     product = 0
     trend = Trend()
     while not seconds or time.monotonic() - t0 < seconds:
         try:
-            hr, coils = client.hr(0, 16), client.coils(9)
+            hr, coils = client.hr(0, 25), client.coils(10)
         except Exception as e:  # a PLC that stops answering is shown, not a traceback
             sys.stdout.write(f"\033[H\033[2J{title}: no answer ({e}); retrying\n")
             sys.stdout.flush()
@@ -318,6 +363,7 @@ def show(client, sim, title, where, seconds):
             if want != product:
                 product = want
                 client.write(1026, product)
+        meter.step()
         screen(hr, coils, sim_lines(sim), t0, title, where, trend, note)
         time.sleep(0.5)
 

@@ -4,6 +4,7 @@ with its Modbus TCP server on loopback (private namespace), the simulator on a p
 as an independent client of the PLC."""
 import contextlib
 import os
+import struct
 import sys
 import time
 
@@ -22,6 +23,7 @@ Z1PV, Z1SV, Z1ERR, Z2PV, Z2SV, Z2ERR, COUNT, COUNTERR, BEAT, Z1SPSTATUS, Z2SPSTA
 PRODUCTHELD, Z1RSTATUS = 11, 12
 Z2SPREQ, PRODUCTREQ = 1025, 1026
 C_Z1VALID, C_Z2VALID, C_Z2QUIET, C_PARTSVALID, C_ANY = 0, 3, 5, 6, 8
+METER, METERERR, C_METERVALID = 16, 24, 9       # HR 16..23 the meter's registers as read
 
 
 @contextlib.contextmanager
@@ -113,6 +115,23 @@ def test_plc_shows_the_simulators_values(plant):
     c = hr(client, COUNT)[0]
     assert 0 < c <= sim.ctl("get", addr=3, reg="VALUE")["raw"] & 0xFFFF
     assert hr(client, Z1ERR)[0] == hr(client, Z2ERR)[0] == hr(client, COUNTERR)[0] == 0
+
+
+def test_energy_meter_beside_the_instruments(plant):
+    """The meter (a generic device: IEEE 754 REALs, CDAB) polled by MB_Poll on the instruments'
+    line: its registers at HR 16..23 as the simulator holds them, changed ones too."""
+    sim, plc, client = plant
+    want = []
+    for reg in ("voltage", "current", "power", "energy"):
+        want += sim.ctl("get", addr=4, reg=reg)["words"]
+    assert abs(struct.unpack(">f", struct.pack(">HH", want[1], want[0]))[0] - 230.4) < 1e-4
+    wait(lambda: coils(client, 10)[C_METERVALID] and hr(client, METER, 8) == want, 30,
+         "the meter's registers at HR 16..23")
+    assert hr(client, METERERR)[0] == 0
+    sim.ctl("set", addr=4, reg="power", eng=1500.5)
+    words = sim.ctl("get", addr=4, reg="power")["words"]
+    wait(lambda: hr(client, METER + 4, 2) == words, 30, "the new power at HR 20..21")
+    assert all(coils(client)[i] for i in (C_Z1VALID, C_Z2VALID, C_PARTSVALID))
 
 
 def test_set_point_reaches_the_instrument_and_pv_follows(plant):

@@ -43,6 +43,9 @@ PARTS = re.compile(r"^Parts .*count\s+(\d+)\s+(ok|no data)", re.M)
 SIM = re.compile(r"FDC-100 PV (-?[\d.]+) SP1 (-?[\d.]+)\s+MV-D94 PV (-?[\d.]+) SV (-?[\d.]+)"
                  r"\s+MT-S9 count (\d+)")
 SCANS = re.compile(r"PLC scans: (\d+)")
+METER = re.compile(r"^Energy  meter   #4\s+(-?[\d.]+) V\s*(-?[\d.]+) A\s*(-?[\d.]+) kW\s*"
+                   r"(-?[\d.]+) kWh  (ok|no data)", re.M)
+SIM_METER = re.compile(r"^\s*meter ([\d.]+) V ([\d.]+) A ([\d.]+) kW ([\d.]+) kWh", re.M)
 PRODUCT = re.compile(r"^product: (\S+)\s+recipes: zone 1 (.+?)\s{3}zone 2 (.+?)\s*$", re.M)
 WINDOW = 3          # screens back in which the PLC's value must have been the simulator's
 PV_TOL = 1.0        # degrees
@@ -112,10 +115,14 @@ def frames(text):
         zones = {int(z): (float(pv), float(sv), st == "ok") for z, pv, sv, st in ZONE.findall(f)}
         parts, sim, scans = PARTS.search(f), SIM.search(f), SCANS.search(f)
         product = PRODUCT.search(f)
+        meter, sim_meter = METER.search(f), SIM_METER.search(f)
         if len(zones) == 2 and parts and sim and scans:
             out.append({"zones": zones, "count": int(parts.group(1)), "parts_ok": parts.group(2) == "ok",
                         "sim": [float(x) for x in sim.groups()], "scans": int(scans.group(1)),
-                        "product": product.groups() if product else None})
+                        "product": product.groups() if product else None,
+                        "meter": ([float(x) for x in meter.groups()[:4]] + [meter.group(5) == "ok"]
+                                  if meter else None),
+                        "sim_meter": [float(x) for x in sim_meter.groups()] if sim_meter else None})
     return out
 
 
@@ -136,6 +143,13 @@ def seen(fs):
         "product B held on both zones": any(f["product"] == ("B", "held", "held") for f in fs),
         "product B's set points on the instruments": any(f["sim"][1] == 165.0 and f["sim"][3] == 145.0
                                                          for f in fs),
+        # the energy meter (MB_Poll + MB_TO_REAL): valid, at the simulator's voltage, and its
+        # energy (played from zone 1's heater) rising on the PLC's side
+        "meter valid at the simulator's voltage": any(
+            f["meter"] and f["meter"][4] and f["sim_meter"] and f["meter"][0] == f["sim_meter"][0]
+            for f in fs),
+        "meter energy increased": len(meters := [f["meter"] for f in fs if f["meter"] and f["meter"][4]]) >= 2
+        and meters[-1][3] > meters[0][3],
     }
 
 

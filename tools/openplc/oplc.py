@@ -223,7 +223,9 @@ def retarget(src, dst, bus_port):
 
 # The example's devices on the simulated bus (examples/heat_treat_st/README.md).
 # The FDC-100 is set to no parity (PARI=2) to share the MV-D94's 8N2 line.
-EXAMPLE_DEVICES = ["fdc100:1:PARI=2,SP1=120.0", "mvd94:2:SV=100.0,DP=1", "mts9:3:rate=5"]
+EXAMPLE_DEVICES = ["fdc100:1:PARI=2,SP1=120.0", "mvd94:2:SV=100.0,DP=1", "mts9:3:rate=5",
+                   "generic:4:file=" + os.path.join(ROOT, "examples", "heat_treat_st",
+                                                    "energy_meter.json")]
 
 
 class PlcClient:
