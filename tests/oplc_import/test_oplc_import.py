@@ -281,7 +281,7 @@ def compile_st(text, tmp):
     assert res.returncode == 0, res.stdout + res.stderr
     cxx = shutil.which("g++") or shutil.which("c++")
     res = subprocess.run([cxx, "-std=gnu++11", "-fsyntax-only", "-w", "-I", cinc, "-I",
-                          os.path.join(ROOT, "c_shims", "include"), "-include", "mbfb.h",
+                          os.path.join(ROOT, "c_shims", "include"), "-include", "mbfb_st.h",
                           "Res0.c"], cwd=tmp, capture_output=True, text=True, timeout=600,
                          check=False)
     assert res.returncode == 0, res.stderr[-3000:]
