@@ -4,10 +4,11 @@
     .venv/bin/python bench/wire_pace.py --variant now=worktree --runs 1 --seconds 3   # quick look
 
 Not a test: it prints figures (bench/README.md, "Wire pace", "Three devices on one line",
-"Scale: 8 lines x 32 MT-S9"); what the other benches share is rig.py. In ONE run, on lines paced by
-ptyline (tools/sim/ptyline, 1..10 ms device turnaround, seeded), for each variant (a commit
-exported with `git archive` and built in a temp dir, or the working tree) it measures, side by
-side and interleaved (run 1 of every cell, then run 2, ...):
+"MB_Poll beside a device block on one line", "Scale: 8 lines x 32 MT-S9"); what the other
+benches share is rig.py. In ONE run, on lines paced by ptyline (tools/sim/ptyline, 1..10 ms
+device turnaround, seeded), for each variant (a commit exported with `git archive` and built in
+a temp dir, or the working tree) it measures, side by side and interleaved (run 1 of every
+cell, then run 2, ...):
 
 * one MV-D94 at 9600 8N2 (the simulated MV-D94 stops at 19200) and one MT-S9 at 115200 8N1:
   the shims polling back to back through their public API (bench/wirepace/wp_shims.c, `post`;
