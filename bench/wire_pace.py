@@ -4,10 +4,11 @@
     .venv/bin/python bench/wire_pace.py --variant now=worktree --runs 1 --seconds 3   # quick look
 
 Not a test: it prints figures (bench/README.md, "Wire pace", "Three devices on one line",
-"Scale: 8 lines x 32 MT-S9"); what the other benches share is rig.py. In ONE run, on lines paced by
-ptyline (tools/sim/ptyline, 1..10 ms device turnaround, seeded), for each variant (a commit
-exported with `git archive` and built in a temp dir, or the working tree) it measures, side by
-side and interleaved (run 1 of every cell, then run 2, ...):
+"MB_Poll beside a device block on one line", "Scale: 8 lines x 32 MT-S9"); what the other
+benches share is rig.py. In ONE run, on lines paced by ptyline (tools/sim/ptyline, 1..10 ms
+device turnaround, seeded), for each variant (a commit exported with `git archive` and built in
+a temp dir, or the working tree) it measures, side by side and interleaved (run 1 of every
+cell, then run 2, ...):
 
 * one MV-D94 at 9600 8N2 (the simulated MV-D94 stops at 19200) and one MT-S9 at 115200 8N1:
   the shims polling back to back through their public API (bench/wirepace/wp_shims.c, `post`;
@@ -17,6 +18,10 @@ side and interleaved (run 1 of every cell, then run 2, ...):
   fastest (-l 10), and a plain libmodbus loop (bench/wirepace/wp_lm.c, Debian's libmodbus);
 * the three-device line: MV-D94, FDC-100 and MT-S9 on one 9600 8N2 line, each block with
   Period T#0s in one program: refreshes per second per device;
+* the shared line (--skip lines,three,scale to run it alone): TempCtrl_MVD94 (Period T#0s) and
+  MB_Poll (coils + holding registers of the simulator's generic device bench/poll_device.json,
+  Period T#1ms) on one 9600 8N2 line, one program per task interval: the line's share and each
+  device's refreshes per second (both must refresh);
 * the scale run: 8 buses x 32 MT-S9 at 115200 (8 simulator processes on ptys, pacing their
   own replies), one Counter_MTS9 each in one generated program, against the same program
   with one device: scan time and its jitter, refreshes per device, worker CPU.
@@ -45,7 +50,7 @@ import sys
 import tempfile
 import time
 
-from rig import (CONFIG, HERE, ROOT, Line, Simulator, Variant, device_program,  # noqa: E402,F401
+from rig import (CONFIG, HERE, ROOT, Line, Simulator, Variant, cache_value, device_program,  # noqa: E402,F401
                  host_json, log, run, stop, temp_root)
 
 BEFORE = "12e63ec"   # before the plan-based device blocks: shims with plans, st_src blocks on post/poll/take
@@ -70,6 +75,27 @@ PROGRAM main
   IF mv.Valid AND mv.Age = T#0s THEN {{{{ wp_pub(0); }}}} END_IF;
   IF fdc.Valid AND fdc.Age = T#0s THEN {{{{ wp_pub(1); }}}} END_IF;
   IF ct.Valid AND ct.Age = T#0s THEN {{{{ wp_pub(2); }}}} END_IF;
+END_PROGRAM
+""" + CONFIG
+
+
+POLL_DEVICE = os.path.join(os.path.dirname(os.path.abspath(__file__)), "poll_device.json")
+POLL_RANGES = "Fc1 := 1, Addr1 := 0, Count1 := 20, Fc2 := 3, Addr2 := 0, Count2 := 10"
+
+
+def poll_program(port: str) -> str:
+    """TempCtrl_MVD94 (slave 1) and MB_Poll (slave 2, coils + holding registers) on one line."""
+    return f"""
+PROGRAM main
+  VAR
+    l : MB_LINE := (Baud := 9600, Parity := 'N', StopBits := 2);
+    mv : TempCtrl_MVD94;
+    gp : MB_Poll;
+  END_VAR
+  mv(Enable := TRUE, Port := '{port}', SlaveId := 1, Line := l, Period := T#0s);
+  gp(Enable := TRUE, Port := '{port}', SlaveId := 2, Line := l, Period := T#1ms, {POLL_RANGES});
+  IF mv.Valid AND mv.Age = T#0s THEN {{{{ wp_pub(0); }}}} END_IF;
+  IF gp.Valid AND gp.Age = T#0s THEN {{{{ wp_pub(1); }}}} END_IF;
 END_PROGRAM
 """ + CONFIG
 
@@ -133,7 +159,8 @@ def main() -> int:
     ap.add_argument("--scale-period", default="T#0s",
                     help="the blocks' Period in the scale run (T#0s: refresh back to back; e.g. T#1h: "
                          "one refresh, then steady scans with nothing new)")
-    ap.add_argument("--skip", default="", help="comma list of: lines,three,scale")
+    ap.add_argument("--poll-seconds", type=float, default=6.0)
+    ap.add_argument("--skip", default="", help="comma list of: lines,three,poll,scale")
     args = ap.parse_args()
     skip = set(filter(None, args.skip.split(",")))
     try:
@@ -150,9 +177,9 @@ def main() -> int:
     except ValueError:
         raise SystemExit(f"--scale wants BUSESxDEVICES (e.g. 8x32) or 0, not '{args.scale}'") from None
     if not (0 <= buses <= 64 and 0 <= per_bus <= 247) or min(args.runs, args.seconds, args.warmup + 1) <= 0 \
-            or not intervals or min(intervals) <= 0 or skip - {"lines", "three", "scale"}:
+            or not intervals or min(intervals) <= 0 or skip - {"lines", "three", "poll", "scale"}:
         raise SystemExit("bad arguments: see --help (runs, seconds > 0; intervals > 0; "
-                         "skip from lines,three,scale; at most 64 buses x 247 devices)")
+                         "skip from lines,three,poll,scale; at most 64 buses x 247 devices)")
     if not re.fullmatch(r"T#[0-9]+(ms|s|m|h)", args.scale_period):
         raise SystemExit(f"--scale-period wants an IEC TIME such as T#0s, T#500ms or T#1h, not "
                          f"'{args.scale_period}'")
@@ -167,6 +194,7 @@ def main() -> int:
              deb, f"-Wl,-rpath,{os.path.dirname(deb)}"])
         ports = {k: os.path.join(tmp, k) for k, *_ in LINES}
         ports["three"] = os.path.join(tmp, "three")
+        ports["poll"] = os.path.join(tmp, "poll")
         scale_ports = [os.path.join(tmp, f"bus{b}") for b in range(buses)]
         for v in V:
             log(f"[{v.name}] compiling the ST programs (iec2c, g++ -O0) ...")
@@ -175,6 +203,8 @@ def main() -> int:
                     v.compile(key, device_program(block, ports[key], baud, fmt))
             if "three" not in skip:
                 v.compile("three", three_program(ports["three"]))
+            if "poll" not in skip:
+                v.compile("poll", poll_program(ports["poll"]))
             if "scale" not in skip and buses:
                 v.compile("scale", scale_program(scale_ports, per_bus, args.scale_period))
                 v.compile("scale1", scale_program(scale_ports[:1], 1, args.scale_period))
@@ -220,6 +250,22 @@ def main() -> int:
                         add(("three", v.name), {"pubs": [p / h["window_s"] for p in pubs],
                                                 "tx": [f["per_addr"].get(a, 0.0) for a in (1, 2, 3)],
                                                 "share": f["share"], "short": f["short"]})
+                finally:
+                    line.close()
+            if "poll" not in skip:
+                log(f"run {r + 1}/{args.runs}: MB_Poll beside TempCtrl_MVD94")
+                line = Line(ptyline, tmp, "poll", 9600, "8N2", ["mvd94:1", f"generic:2:file={POLL_DEVICE}"])
+                try:
+                    for v in V:
+                        for ms in intervals:
+                            f, out = timed_master(line, [v.programs["poll"], str(args.warmup),
+                                                         str(args.poll_seconds), str(ms)],
+                                                  args.warmup, args.poll_seconds, True)
+                            h = host_json(out)
+                            pubs = (h["pubs"] + [0, 0])[:2]
+                            add(("poll", f"{v.name}/{ms}"), {"pubs": [p / h["window_s"] for p in pubs],
+                                                       "tx": [f["per_addr"].get(a, 0.0) for a in (1, 2)],
+                                                       "share": f["share"], "short": f["short"]})
                 finally:
                     line.close()
             if "scale" not in skip and buses:
@@ -308,6 +354,20 @@ def report(res, V, intervals, args, buses, per_bus) -> None:
                 t = [med([f["tx"][i] for f in fs]) for i in range(3)]
                 print(f"| {n} | {p[0]:.2f} | {p[1]:.2f} | {p[2]:.2f} | {t[0]:.1f} | {t[1]:.1f} | {t[2]:.1f} | "
                       f"{med([f['share'] for f in fs]):.2f} | {med([f['short'] for f in fs]):.0%} |")
+    if "poll" not in args.skip:
+        print(f"\n## MB_Poll beside TempCtrl_MVD94 on one 9600 8N2 line (MV-D94 Period T#0s; MB_Poll "
+              f"Period T#1ms: {POLL_RANGES}; window {args.poll_seconds:g} s)\n")
+        print("| variant | task ms | MV-D94 refreshes/s | MB_Poll refreshes/s | MV-D94 tx/s | MB_Poll tx/s | "
+              "line share | < t3.5 |")
+        print("|---|---|---|---|---|---|---|---|")
+        for n in names:
+            for ms in intervals:
+                fs = res.get(("poll", f"{n}/{ms}"), [])
+                if fs:
+                    p = [med([f["pubs"][i] for f in fs]) for i in range(2)]
+                    t = [med([f["tx"][i] for f in fs]) for i in range(2)]
+                    print(f"| {n} | {ms} | {p[0]:.2f} | {p[1]:.2f} | {t[0]:.1f} | {t[1]:.1f} | "
+                          f"{med([f['share'] for f in fs]):.2f} | {med([f['short'] for f in fs]):.0%} |")
     if "scale" not in args.skip and buses:
         print(f"\n## Scale: {buses} buses x {per_bus} MT-S9 at 115200 (simulators pace their replies), "
               f"one Counter_MTS9 each (Period := {args.scale_period}) in one program, task {args.scale_task_ms} ms; "
