@@ -11,7 +11,10 @@
 - with --libmodbus: libmodbus's src/*.c/*.h (RTU, TCP), its modbus-version.h made from the .in,
   and a config.h for Linux/glibc (what its configure finds there), so the program needs no
   system libmodbus;
-- OUT/mbfb/library.properties (name, version, defines=).
+- OUT/mbfb/library.properties (name, version, defines=);
+- fixes the .stlib for a user's program (STruC++ fb7980f gaps G6..G8, v4/README.md): a FUNCTION's
+  locals left out of its manifest parameters (G6), C++ default arguments for the trailing inputs
+  that have an initial value (G7), and each enumerator also named unqualified in C++ (G8).
 """
 import argparse
 import json
@@ -61,6 +64,53 @@ def die(msg):
     sys.exit(2)
 
 
+def cpp_default(v, enum_of):
+    """An ST initial value as a C++ default argument, or None when it has no plain form."""
+    if re.fullmatch(r"-?\d+(\.\d+)?", v):
+        return v
+    if v.upper() in ("TRUE", "FALSE"):
+        return v.lower()
+    if v.upper() in enum_of:
+        return f"{enum_of[v.upper()]}::{v.upper()}"
+    return None
+
+
+def fix_stlib(arch):
+    """The .stlib as a user's program needs it (STruC++ fb7980f, v4/README.md G6..G8).
+    G6: the manifest lists a FUNCTION's VAR locals as inputs (required ones, without an initial
+    value): a call then asks for them. Only the parameters of its C++ signature stay.
+    G7: a program's call of a library FUNCTION that leaves out an input with an initial value
+    passes the remaining arguments as written (no default filled in): the C++ declaration gets
+    default arguments for its trailing inputs that have one.
+    G8: an enumerator in a program's initialiser is emitted unqualified (MB_ORDER_CDAB, not
+    MB_ORDER::MB_ORDER_CDAB): each enumerator is also declared as a constexpr of its type."""
+    chunks = {c["name"]: c for c in arch["chunks"]}
+    enum_of = {}
+    for c in arch["chunks"]:
+        m = re.match(r"enum class (\w+) \{([^}]*)\};", c["header"]) if c["kind"] == "type" else None
+        if m:
+            names = [n.strip() for n in m.group(2).split(",") if n.strip()]
+            enum_of.update({n.upper(): m.group(1) for n in names})
+            c["header"] += "".join(f"constexpr {m.group(1)} {n} = {m.group(1)}::{n};\n" for n in names)
+    for fn in arch["manifest"]["functions"]:
+        c = chunks.get(fn["name"])
+        m = re.fullmatch(r"(.*?\w+\()(.*)\);\s*", c["header"], re.S) if c else None
+        if not m:
+            die(f"{fn['name']}: no C++ declaration in the .stlib")
+        sig = [p.strip() for p in m.group(2).split(",") if p.strip()]
+        cnames = [p.split()[-1].lstrip("&*") for p in sig]
+        fn["parameters"] = [p for p in fn["parameters"] if p["name"].upper() in cnames]
+        by = {p["name"].upper(): p for p in fn["parameters"]}
+        for i in range(len(sig) - 1, -1, -1):
+            p = by.get(cnames[i])
+            d = cpp_default(p["initialValue"], enum_of) if p and p["direction"] == "input" \
+                and "initialValue" in p and "=" not in sig[i] else None
+            if d is None:
+                break
+            sig[i] += f" = {d}"
+        c["header"] = m.group(1) + ", ".join(sig) + ");"
+
+
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--stlib", required=True)
@@ -76,6 +126,7 @@ def main():
     except (OSError, ValueError) as e:
         die(f"cannot read {a.stlib}: {e}")
     arch["manifest"]["headers"] = [os.path.basename(a.header)]
+    fix_stlib(arch)
     with open(a.stlib, "w", encoding="utf-8") as f:
         json.dump(arch, f)
     src = os.path.join(a.dir, "src")

@@ -9,6 +9,8 @@
   run_strucpp.py fb      BUILD_DIR TARGET EXE T.st   one tests/fb program under STruC++
   run_strucpp.py unload  BUILD_DIR TARGET HOST SO ST  tests/fb/unload's program under STruC++,
                                                loaded and unloaded 20 times
+  run_strucpp.py program BUILD_DIR V4_DIR P.st P.test  a user's PROGRAM using mbfb.stlib (P.st),
+                                               checked by STruC++'s --test (P.test)
   run_strucpp.py skip    REASON                skip (exit 77) with a reason
 
 Exit 77 = skipped (no Node/npm/STruC++ source; MBFB_STRUCPP_REASON), except under
@@ -170,6 +172,27 @@ def cmd_layout(v4):
               "-lpthread -lrt only; dlopen(RTLD_NOW) resolves every symbol")
 
 
+def gap_with_library(v4, cli, gap, lib, tmp):
+    """GAP.st compiled against GAP.lib made a .stlib as v4/CMakeLists.txt makes mbfb.stlib
+    (--compile-lib, no mkpackage.py fixes), then the C++ compiled (g++ -fsyntax-only): some of
+    these gaps pass STruC++ and fail in the C++ it writes."""
+    src = os.path.join(tmp, "lib_src")
+    os.makedirs(src)
+    shutil.copy(lib, os.path.join(src, "gaplib.st"))
+    rc, out = run(["node", cli, "--compile-lib", src, "-o", tmp, "--lib-name", "gaplib",
+                   "--lib-version", "1.0.0", "--lib-namespace", "strucpp"])
+    if rc:
+        return 0, out + "\n(the gap's library itself does not compile: not the gap)"
+    cpp = os.path.join(tmp, "g.cpp")
+    rc, out2 = run(["node", cli, gap, "-o", cpp, "-L", tmp])
+    if rc:
+        return rc, out + out2
+    rc, out3 = run(["g++", "-std=c++17", "-fsyntax-only", "-DSTRUCPP_THREADED", "-I", tmp,
+                    "-I", os.path.join(v4, "strucpp", "src", "runtime", "include"),
+                    "-Wno-unknown-pragmas", "-Wno-deprecated-declarations", cpp])
+    return rc, out + out2 + out3[-3000:]
+
+
 def cmd_gap(v4, gap):
     cli = need(v4)
     test = gap[:-3] + ".test"
@@ -188,13 +211,42 @@ def cmd_gap(v4, gap):
                 sys.exit(1)
             print(f"PASS: gap still present ({os.path.basename(gap)}): the workaround stays")
             return
-        rc, out = run(["node", cli, gap, "-o", os.path.join(tmp, "g.cpp")])
+        lib = gap[:-3] + ".lib"
+        if os.path.exists(lib):  # a gap of a library's use: its FUNCTIONs in a .stlib first
+            rc, out = gap_with_library(v4, cli, gap, lib, tmp)
+        else:
+            rc, out = run(["node", cli, gap, "-o", os.path.join(tmp, "g.cpp")])
     print(out)
     if rc == 0:
         print(f"FAIL: STruC++ now accepts {os.path.basename(gap)}: the gap is closed; drop its "
               "workaround in v4/translate.py and this test")
         sys.exit(1)
     print(f"PASS: gap still present ({os.path.basename(gap)}): the workaround stays")
+
+
+def cmd_program(build_dir, v4, prog, test):
+    """A user's PROGRAM compiled against the package's mbfb.stlib as Runtime v4 does (-L
+    package, no other library), run by STruC++'s --test with the shims (libmbfb.so, the
+    default flavour) linked in: P.test's assertions on the program's variables."""
+    cli = need(v4)
+    rc, out = build(build_dir, "mbfb_shared")
+    if rc:
+        print(out[-4000:])
+        print("FAIL: libmbfb.so did not build")
+        sys.exit(1)
+    lib = os.path.join(build_dir, "lib", "libmbfb.so")
+    pkg = os.path.join(v4, "package")
+    with tempfile.TemporaryDirectory(prefix="mbfb-prog-") as tmp:
+        flags = (f"-I{os.path.join(pkg, 'mbfb', 'src')} -Wno-unknown-pragmas "
+                 f"-Wno-deprecated-declarations -Wl,--no-as-needed {lib} -Wl,-rpath,{os.path.dirname(lib)} -lpthread")
+        # --test builds under os.tmpdir() and leaves it there: TMPDIR puts it inside ours
+        rc, out = run(["node", cli, prog, "--test", test, "-o", tmp, "--no-default-libs",
+                       "-L", pkg, "--cxx-flags", flags], env={**os.environ, "TMPDIR": tmp})
+    print(out[-6000:])
+    if rc:
+        print(f"FAIL: {os.path.basename(prog)} under STruC++ with mbfb.stlib")
+        sys.exit(1)
+    print(f"PASS: {os.path.basename(prog)}: {os.path.basename(test)} holds")
 
 
 def cmd_fb(build_dir, target, exe, st):
@@ -265,13 +317,15 @@ def main():
         cmd_fb(*a[1:])
     if a and a[0] == "unload" and len(a) == 6:
         cmd_unload(*a[1:])
-    if not a or a[0] not in ("build", "layout", "gap", "skip"):
+    if not a or a[0] not in ("build", "layout", "gap", "program", "skip"):
         print("usage: run_strucpp.py build BUILD_DIR | layout V4_DIR | gap V4_DIR GAP.st | skip REASON")
         sys.exit(2)
     if a[0] == "build":
         cmd_build(a[1], a[2:])
     elif a[0] == "layout":
         cmd_layout(a[1])
+    elif a[0] == "program":
+        cmd_program(a[1], a[2], a[3], a[4])
     elif a[0] == "gap":
         cmd_gap(a[1], a[2])
     else:
