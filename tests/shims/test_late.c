@@ -234,15 +234,18 @@ static void late_heard_in_resync_wait(void)
  * OFFLINE until the shapes were MBFB_LATE_MAX_MS old): its resync read is FC03 of two
  * registers, a shape the failed attempts did not leave, then the read itself, whose answer
  * is the value written. */
+/* The echo comes 1.2 s late: after the write's attempt, its read-back and the FC04 resync
+ * (150 ms each), with room for a loaded machine; 150 ms leave the peer's thread time to read
+ * the next request on such a machine (at 50 ms it was starved past all three attempts in CI). */
 static void deaf_late_echo(peer_t *p, int n, const uint8_t *f, int len, peer_reply_t *r)
 {
-    peer_answer_late_deaf(p, n, f, len, r, 0, 400);
+    peer_answer_late_deaf(p, n, f, len, r, 0, 1200);
 }
 
 static void late_echo_heard(void)
 {
     uint16_t v[1] = {0}, w = 0x1234;
-    int dev = t_serial_dev(&P, deaf_late_echo, framing, 9600, 50, 2);
+    int dev = t_serial_dev(&P, deaf_late_echo, framing, 9600, 150, 2);
     CHECK_EQ(t_run(dev, 6, 0, 1, &w, NULL, 0), -MBFB_E_UNCONFIRMED);
     CHECK_EQ(t_diag(dev).resyncs, 2);   /* the read-back, then FC04 ...          */
     for (int64_t end = t_now_us() + 5000000; !late_started() && t_now_us() < end;)
