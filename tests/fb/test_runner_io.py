@@ -33,10 +33,11 @@ def test_snapshot_lists_the_located_variables_consistently(plc):
     # Exactly the example's located variables (heat_treat_st.st), by IEC address.
     assert set(snap) == {"scan", "QW", "MW", "QX"}
     # %QW0..8 values and status, %QW9/%QW10 the set point requests' status (0 = none yet),
-    # %QW11..15 the product held and the zones' recipe status and field
-    assert sorted(snap["QW"], key=int) == [str(i) for i in range(16)]
+    # %QW11..15 the product held and the zones' recipe status and field, %QW16..23 the energy
+    # meter's four REALs as read, %QW24 its ErrorID
+    assert sorted(snap["QW"], key=int) == [str(i) for i in range(25)]
     assert sorted(snap["MW"]) == ["0", "1", "2"]
-    assert sorted(snap["QX"]) == [f"0.{i}" for i in range(8)] + ["1.0"]
+    assert sorted(snap["QX"]) == [f"0.{i}" for i in range(8)] + ["1.0", "1.1"]
     # Written between two scans: the heartbeat (%QW8, +1 per scan) equals the scan count.
     assert snap["QW"]["8"] == snap["scan"] & 0xFFFF
     # No port: nothing valid, and the blocks say why (ErrorID != 0 in %QW2/%QW5/%QW7), once
