@@ -39,15 +39,17 @@ def run(cmd, **kw):
     return p.returncode, p.stdout + p.stderr
 
 
-def build(build_dir, target):
-    """cmake --build of one target, one at a time in the build tree: the strucpp tests run in
-    parallel (ctest -j) and two ninja runs in one tree would race on its log and on the targets
-    they share (mbfb, STruC++). The lock is held for the build only, not for the test run."""
+def build(build_dir, *targets, keep_going=False):
+    """cmake --build of the targets, one build at a time in the build tree: the strucpp tests run
+    in parallel (ctest -j) and two ninja runs in one tree would race on its log and on the
+    targets they share (mbfb, STruC++). The lock is held for the build only, not for the test
+    run. keep_going: a target that fails does not stop the others (ninja -k 0)."""
     import fcntl
     with open(os.path.join(build_dir, ".mbfb-test-build.lock"), "w") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
         # niced: the tests running beside it (ctest -j) wait on the wall clock
-        return run(["nice", "-n", "10", "cmake", "--build", build_dir, "--target", target, "-j2"])
+        return run(["nice", "-n", "10", "cmake", "--build", build_dir, "--target", *targets, "-j2"]
+                   + (["--", "-k", "0"] if keep_going else []))
 
 
 def need(v4):
@@ -80,9 +82,14 @@ def cmd_build(build_dir, fb_targets=()):
     if rc:
         print("FAIL: target mbfb_v4 did not build")
         sys.exit(1)
-    # The fb programs now, one build after another, before their tests start (ctest fixture
-    # strucpp): then those tests run in parallel without compiling beside each other. A program
-    # that does not build is reported by its own test (strucpp_fb_*), which builds it again.
+    # The fb programs now, before their tests start (ctest fixture strucpp): then those tests run
+    # in parallel without compiling beside each other. One ninja run for all of them, two jobs
+    # at a time (each program's translation and STruC++ run is one node process on one core:
+    # one target after another left the second core idle); then each target alone, a no-op
+    # when it built, to name the ones that did not. A program that does not build is reported
+    # by its own test (strucpp_fb_*), which builds it again.
+    if fb_targets:
+        build(build_dir, *fb_targets, keep_going=True)
     failed = [t for t in fb_targets if build(build_dir, t)[0]]
     print(f"fb programs built: {len(fb_targets) - len(failed)} of {len(fb_targets)}"
           + (f" (not built, see their tests: {' '.join(failed)})" if failed else ""))
