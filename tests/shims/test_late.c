@@ -114,8 +114,18 @@ static void late_case(int trickling)
         h = post_when(dev, 10, NREG, late_started);
         CHECK(peer_reply_sent(&P) < bytes); /* posted while it was coming in */
     } else {
+        mbfb_bus_diag_t bd;
+        uint32_t sent;
+        CHECK_EQ(mbfb_bus_diag(dev, &bd), 0);
+        sent = bd.transactions;
         h = mbfb_post(dev, 3, 10, NREG, NULL);
-        t_sleep_ms(T_MS / 4);             /* inside the resync read's response timeout */
+        /* released once the resync read is on the wire (the bus counts it as it is written):
+         * inside its response timeout however late the worker got to it (a fixed wait of
+         * T_MS / 4 here failed under CI's load) */
+        for (int64_t end = t_now_us() + 5000000;
+             mbfb_bus_diag(dev, &bd) == 0 && bd.transactions == sent && t_now_us() < end;)
+            t_sleep_ms(1);
+        CHECK(bd.transactions > sent);
         CHECK_EQ(peer_reply_sent(&P), 0);
         peer_release(&P);
     }
