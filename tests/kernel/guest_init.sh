@@ -15,9 +15,18 @@ done
 # prints goes there once it exists; the program finds the control line in MBFB_BED_CTL
 if [ -s /etc/bed/console ]; then
     con=$(cat /etc/bed/console)
+    # wait until it opens, not only until it exists: a redirection that fails on `exec` ends
+    # this shell, and init with it (a kernel panic, "Attempted to kill init", seen once in CI
+    # 3 s into an aarch64 boot; cause not proven)
     n=0
-    while [ ! -e "$con" ] && [ $n -lt 200 ]; do sleep 0.05; n=$((n + 1)); done
-    exec >"$con" 2>&1
+    until { [ -e "$con" ] && true >>"$con"; } 2>/dev/null || [ $n -ge 200 ]; do
+        sleep 0.05; n=$((n + 1))
+    done
+    if { [ -e "$con" ] && true >>"$con"; } 2>/dev/null; then
+        exec >>"$con" 2>&1
+    else
+        echo "BED: console $con cannot be opened"
+    fi
 fi
 export MBFB_BED_CTL="$(cat /etc/bed/ctl)"
 sh /etc/bed/setup || echo "BED: setup failed"
