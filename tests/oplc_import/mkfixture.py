@@ -23,23 +23,20 @@ PRIMARY KEY("Key"));"""
 # (name, type, slave, port, baud, parity, data, stop, ip, ip_port,
 #  di start/size, coil start/size, ir start/size, hr read start/size, hr write start/size, pause)
 # as the page stores them: a TCP device keeps the RTU fields empty and the other way round.
+RELAYS = ("relays", "RTU", 2, "/dev/ttyUSB0", 9600, "None", 8, 2, "", 0,
+          0, 8, 0, 4, 0, 0, 0, 0, 0, 0, 0)
+METER = ("meter", "RTU", 5, "/dev/ttyUSB0", 9600, "None", 8, 2, "", 0,
+         0, 0, 0, 0, 0, 8, 20, 4, 10, 2, 0)
 PLANTS = {
     "plant": [
-        ("relays", "RTU", 2, "/dev/ttyUSB0", 9600, "None", 8, 2, "", 0,
-         0, 8, 0, 4, 0, 0, 0, 0, 0, 0, 0),
-        ("meter", "RTU", 5, "/dev/ttyUSB0", 9600, "None", 8, 2, "", 0,
-         0, 0, 0, 0, 0, 8, 20, 4, 10, 2, 0),
+        RELAYS,
+        METER,
         ("esp io", "ESP32", 1, "", 0, "", 0, 0, "127.0.0.1", 5020,
          0, 8, 0, 8, 0, 1, 0, 0, 0, 1, 0),
         ("vfd", "TCP", 7, "", 0, "", 0, 0, "127.0.0.1", 5021,
          0, 0, 0, 0, 0, 0, 8192, 3, 8192, 2, 0),
     ],
-    "line": [               # test_oplc_line.py: the converted program against the simulator
-        ("relays", "RTU", 2, "/dev/ttyUSB0", 9600, "None", 8, 2, "", 0,
-         0, 8, 0, 4, 0, 0, 0, 0, 0, 0, 0),
-        ("meter", "RTU", 5, "/dev/ttyUSB0", 9600, "None", 8, 2, "", 0,
-         0, 0, 0, 0, 0, 8, 20, 4, 10, 2, 0),
-    ],
+    "line": [RELAYS, METER],   # test_oplc_line.py: the converted program against the simulator
     "com_port": [           # a Windows port name, as the page offers it: COM3 -> /dev/ttyS2
         ("uno", "Uno", 0 + 1, "COM3", 115200, "Even", 8, 1, "", 0,
          0, 5, 0, 4, 0, 6, 0, 0, 0, 3, 0),

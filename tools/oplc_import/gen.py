@@ -10,21 +10,19 @@ from readers import MAX_READ_REGS, Problem
 MAX_RANGES = 4                  # MB_Poll's ranges (Fc1..Fc4)
 
 # Written once into every output: a write of bits or words, sent when the values differ from
-# what the device was last confirmed to hold (or were never written), not every poll.
-HELPERS = """\
-(* OPLC_WriteBits - coils of a converted OpenPLC master entry: written (FC15, or FC05 when
-   Single) when Values differ from what the device last confirmed, or were never written;
-   after a failed write, again after Retry. Held: the device holds Values. *)
-FUNCTION_BLOCK OPLC_WriteBits
+# what the device was last confirmed to hold (or were never written), not every poll. One text,
+# rendered for coils and for registers: ST has no generic block over MB_BITS / MB_REGS.
+WRITE_FB = """\
+FUNCTION_BLOCK {name}
   VAR_INPUT
     Port : STRING;
     SlaveId : INT := 1;
     Line : MB_LINE;
     Addr : UDINT;
     Count : INT := 1;
-    Single : BOOL;               (* FC05 of one coil instead of FC15 *)
+    Single : BOOL;               (* {single} of one {unit} instead of {multi} *)
     Retry : TIME := T#1s;
-    Values : MB_BITS;            (* the output bits now *)
+    Values : {values};            (* the output {what} now *)
   END_VAR
   VAR_OUTPUT
     Held : BOOL;
@@ -34,10 +32,10 @@ FUNCTION_BLOCK OPLC_WriteBits
     Writes : UDINT;              (* writes confirmed *)
   END_VAR
   VAR
-    one : MB_WriteCoil;
-    many : MB_WriteCoils;
-    sent : MB_BITS;              (* what the device holds, once written is TRUE *)
-    sending : MB_BITS;           (* what the write on the wire carries *)
+    one : {one};
+    many : {many};
+    sent : {values};              (* what the device holds, once written is TRUE *)
+    sending : {values};           (* what the write on the wire carries *)
     written : BOOL;
     exec : BOOL;                 (* a write is running: Execute held until Done or Error *)
     changed : BOOL;
@@ -84,79 +82,27 @@ FUNCTION_BLOCK OPLC_WriteBits
   Busy := exec;
   Held := written AND NOT changed AND NOT exec;
 END_FUNCTION_BLOCK
-
-(* OPLC_WriteWords - holding registers of a converted OpenPLC master entry, as OPLC_WriteBits:
-   FC16, or FC06 when Single. *)
-FUNCTION_BLOCK OPLC_WriteWords
-  VAR_INPUT
-    Port : STRING;
-    SlaveId : INT := 1;
-    Line : MB_LINE;
-    Addr : UDINT;
-    Count : INT := 1;
-    Single : BOOL;               (* FC06 of one register instead of FC16 *)
-    Retry : TIME := T#1s;
-    Values : MB_REGS;            (* the output words now *)
-  END_VAR
-  VAR_OUTPUT
-    Held : BOOL;
-    Busy : BOOL;
-    Error : BOOL;
-    ErrorID : WORD;
-    Writes : UDINT;
-  END_VAR
-  VAR
-    one : MB_WriteRegister;
-    many : MB_WriteRegisters;
-    sent : MB_REGS;
-    sending : MB_REGS;
-    written : BOOL;
-    exec : BOOL;
-    changed : BOOL;
-    i : INT;
-    wait : TON;
-  END_VAR
-  changed := NOT written;
-  i := 0;
-  WHILE i < Count DO
-    IF Values[i] <> sent[i] THEN
-      changed := TRUE;
-    END_IF;
-    i := i + 1;
-  END_WHILE;
-  IF exec THEN
-    IF (Single AND one.Done) OR (NOT Single AND many.Done) THEN
-      sent := sending;
-      written := TRUE;
-      exec := FALSE;
-      Error := FALSE;
-      ErrorID := 0;
-      Writes := Writes + 1;
-    ELSIF Single AND one.Error THEN
-      exec := FALSE;
-      Error := TRUE;
-      ErrorID := one.ErrorID;
-    ELSIF NOT Single AND many.Error THEN
-      exec := FALSE;
-      Error := TRUE;
-      ErrorID := many.ErrorID;
-    END_IF;
-  ELSIF changed AND (NOT Error OR wait.Q) THEN
-    sending := Values;
-    exec := TRUE;
-  END_IF;
-  wait(IN := Error AND NOT exec, PT := Retry);
-  IF Single THEN
-    one(Execute := exec, Port := Port, SlaveId := SlaveId, Line := Line, Addr := Addr,
-        Value := sending[0]);
-  ELSE
-    many(Execute := exec, Port := Port, SlaveId := SlaveId, Line := Line, Addr := Addr,
-         Count := Count, Values := sending);
-  END_IF;
-  Busy := exec;
-  Held := written AND NOT changed AND NOT exec;
-END_FUNCTION_BLOCK
 """
+
+
+def write_fb(name: str, doc: str, **kind) -> str:
+    """One of the two write blocks: WRITE_FB for one Modbus area (its array types are both
+    7 characters: the columns stay aligned)."""
+    return doc + WRITE_FB.format(name=name, **kind)
+
+
+HELPERS = write_fb(
+    "OPLC_WriteBits",
+    "(* OPLC_WriteBits - coils of a converted OpenPLC master entry: written (FC15, or FC05 when\n"
+    "   Single) when Values differ from what the device last confirmed, or were never written;\n"
+    "   after a failed write, again after Retry. Held: the device holds Values. *)\n",
+    single="FC05", unit="coil", multi="FC15", values="MB_BITS", what="bits",
+    one="MB_WriteCoil", many="MB_WriteCoils") + "\n" + write_fb(
+    "OPLC_WriteWords",
+    "(* OPLC_WriteWords - holding registers of a converted OpenPLC master entry, as OPLC_WriteBits:\n"
+    "   FC16, or FC06 when Single. *)\n",
+    single="FC06", unit="register", multi="FC16", values="MB_REGS", what="words",
+    one="MB_WriteRegister", many="MB_WriteRegisters")
 
 
 def located_name(loc: str) -> str:
