@@ -10,11 +10,13 @@ shows), so the order of the calls is the order of the numbers. For each recipe p
 - the calls name, in order, the registers of settings.fields() (`Reg := REG.X`), every field
   once, and the last call (Close) the lock (or the MT-S9's Author level, access_register());
 - each field's range (Lo, Hi; MB_Recipe's defaults 0..65535) is the map's raw range, its
-  bounds evaluated from the block's VAR CONSTANTs; a bound given as the recipe's own limits
+  bounds evaluated from the block's VAR CONSTANTs and the fields of the shared constant
+  structures it declares an instance of (`SC : FDC_SCALES`: `SC.DP_MAX`); a bound given as the recipe's own limits
   (lo, hi) is allowed only to a limit or a field the map puts within them; a field with a code
   table gives Known (and no other bound), and only such a field does;
 - `Signed := TRUE` exactly on the fields whose register is signed;
-- MB_LAST (MB_Types.st) gives the last index of MB_STEPS and MB_REGS, and every recipe fits.
+- MB_LAST (MB_Types.st) gives the last index of MB_BITS, MB_REGS and MB_STEPS, and every
+  recipe fits.
 Exit 0 when all agree; 1 on any difference (a line each), or when a part is not found.
 """
 from __future__ import annotations
@@ -49,6 +51,21 @@ def constants(body: str) -> dict:
     for block in re.findall(r"\bVAR\s+CONSTANT\b(.*?)\bEND_VAR\b", body, re.S):
         for name, value in re.findall(r"(\w+)\s*:\s*\w+\s*:=\s*([^;]+);", block):
             out[name.upper()] = value.strip()
+    return out
+
+
+def struct_constants(src_dir: str, body: str) -> dict:
+    """`INST.FIELD` -> initialiser, for each instance the block declares of a structure of
+    st_src (`SC : FDC_SCALES;` gives SC.DP_MAX, SC.OFFSET, ...)."""
+    text = " ".join(COMMENT.sub(" ", open(os.path.join(src_dir, f), encoding="utf-8").read())
+                    for f in sorted(os.listdir(src_dir)) if f.endswith(".st"))
+    structs = {n.upper(): b for n, b in re.findall(r"\b(\w+)\s*:\s*STRUCT\b(.*?)\bEND_STRUCT\b",
+                                                   text, re.S)}
+    out = {}
+    for inst, typ in re.findall(r"\b(\w+)\s*:\s*(\w+)\s*;", body):
+        fields = structs.get(typ.upper(), "")
+        for name, value in re.findall(r"(\w+)\s*:\s*\w+\s*:=\s*([^;]+);", fields):
+            out[f"{inst}.{name}".upper()] = value.strip()
     return out
 
 
@@ -111,7 +128,7 @@ def check_part(device: str, src_dir: str) -> list:
     where = f"{os.path.relpath(path, ROOT)} {name}"
     if not body:
         return [f"{where}: FUNCTION_BLOCK not found"]
-    consts = constants(body)
+    consts = {**struct_constants(src_dir, body), **constants(body)}
     cs = [c for c in calls(body, inst) if "CLEAR" not in c]
     fields = [s for s in settings.fields(device) if s.part != "lock"]
     lock = settings.access_register(device)
@@ -169,7 +186,7 @@ def check_last(src_dir: str) -> list:
     bad = []
     last = re.search(r"\bMB_LAST\s*:\s*STRUCT\b(.*?)\bEND_STRUCT\b", types, re.S)
     got = dict(re.findall(r"(\w+)\s*:\s*INT\s*:=\s*(\d+)\s*;", last.group(1))) if last else {}
-    for field, arr in (("REGS", "MB_REGS"), ("STEPS", "MB_STEPS")):
+    for field, arr in (("BITS", "MB_BITS"), ("REGS", "MB_REGS"), ("STEPS", "MB_STEPS")):
         m = re.search(rf"\b{arr}\s*:\s*ARRAY\s*\[\s*0\s*\.\.\s*(\d+)\s*\]", types)
         if not m or got.get(field) != m.group(1):
             bad.append(f"st_src/MB_Types.st: MB_LAST.{field} = {got.get(field)}, {arr} ends at "
