@@ -26,7 +26,7 @@ from bed import Bed, Port, Skip, skip_or_fail  # noqa: E402
 import test_serial as ts  # noqa: E402
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "fb"))
 from run_fb_test import sim_spec  # noqa: E402  (tests/fb: a program's @SIM header)
-from test_serial import check, results, until_next_mark, window, char_us  # noqa: E402
+from test_serial import check, results, window, char_us  # noqa: E402
 
 AMA = "/dev/ttyAMA0"
 # 3000000: above the PL011's clock / 16 (QEMU's virt: 24 MHz): the driver falls back to the
@@ -93,16 +93,7 @@ def rts_checks(run, baud, before, after, n):
             lead.append((frame[0] - on) * 1e6)
             late.append((off - (frame[0] + wire / 1e6)) * 1e6)
     check(len(lead) == len(edges), f"{AMA} RTS: a data byte in every pulse")
-    if late:
-        print(f"      {AMA} RTS: before the first byte {min(lead):.0f}..{max(lead):.0f} us "
-              f"(DirBeforeUs {before}); released {min(late):.0f}..{max(late):.0f} us after the "
-              f"frame's last bit (one character {ch:.0f} us + DirAfterUs {after})")
-        check(min(lead) >= before, f"{AMA} RTS asserted at least DirBeforeUs before the first byte")
-        check(min(late) >= 0, f"{AMA} RTS never released before the frame's last bit")
-        median = sorted(late)[len(late) // 2]
-        check(median <= ch + after + ts.TCG_SLACK_US,
-              f"{AMA} RTS released within one character + DirAfterUs of the last bit, median "
-              f"{median:.0f} us (+{ts.TCG_SLACK_US} us for the guest's timers under TCG)")
+    ts.check_rts_timing(AMA, lead, late, before, after, ch)
 
 
 def main():
@@ -163,23 +154,7 @@ def main():
 
     # bauds: what the PL011 was programmed with is what was asked (1 %), or ErrorID 14 naming
     # the rate the driver fell back to
-    for d in results(run.output, "bauds"):
-        asked = d["asked"]
-        rate = programmed_rate(until_next_mark(run, f"baud {asked} {AMA}"))
-        ok_rate = rate is not None and abs(rate - asked) <= asked * ts.TOLERANCE
-        said = [ln for ln in run.output.splitlines()
-                if ln.startswith(f"mbfb: {AMA}: {asked} baud asked")]
-        if d["rc"] == 0:
-            check(ok_rate, f"{AMA} {asked}: the driver programmed {rate}, within 1 %")
-        else:
-            check(d["rc"] == 14 and not ok_rate and len(said) == 1 and
-                  f"would run at {rate} " in said[0],
-                  f"{AMA} {asked}: ErrorID {d['rc']}, the driver programmed {rate}, the shims "
-                  f"said: {said}")
-        check(d["sim_heard"] == 0 if d["rc"] else d["sim_heard"] > 0,
-              f"{AMA} {asked}: the simulator heard {d['sim_heard']} bytes")
-        err = f"{(rate - asked) * 100 / asked:+.2f} %" if rate else "-"
-        print(f"      {AMA} asked {asked}: programmed {rate} ({err}), ErrorID {d['rc']}")
+    ts.check_bauds(run, AMA, programmed_rate)
     top = [d for d in results(run.output, "bauds") if d["asked"] == BAUDS[-1]]
     check(len(top) == 1 and top[0]["rc"] == 14,
           f"{AMA} {BAUDS[-1]} (above the clock / 16): ErrorID 14 ({top})")

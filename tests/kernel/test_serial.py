@@ -63,6 +63,50 @@ def until_next_mark(run, start):
     return [e for e in run.trace if marks[i][0] <= e[0] <= t1]
 
 
+def check_bauds(run, port, rate_of):
+    """The port's bauds: what the driver programmed (rate_of(trace events)) is what was asked
+    (TOLERANCE), or ErrorID 14 and the shims' one line naming the rate it would run at; the
+    simulator heard bytes exactly when the open worked."""
+    for d in results(run.output, "bauds"):
+        if d["port"] != port:
+            continue
+        asked = d["asked"]
+        rate = rate_of(until_next_mark(run, f"baud {asked} {port}"))
+        ok_rate = rate is not None and abs(rate - asked) <= asked * TOLERANCE
+        said = [ln for ln in run.output.splitlines()
+                if ln.startswith(f"mbfb: {port}: {asked} baud asked")]
+        if d["rc"] == 0:
+            check(ok_rate, f"{port} {asked}: the driver programmed {rate}, within 1 %")
+        else:
+            check(d["rc"] == 14 and not ok_rate and len(said) == 1 and
+                  f"would run at {rate} " in said[0],
+                  f"{port} {asked}: ErrorID {d['rc']}, the driver programmed {rate}, "
+                  f"the shims said: {said}")
+        check(d["sim_heard"] == 0 if d["rc"] else d["sim_heard"] > 0,
+              f"{port} {asked}: the simulator heard {d['sim_heard']} bytes")
+        err = f"{(rate - asked) * 100 / asked:+.2f} %" if rate else "-"
+        print(f"      {port} asked {asked}: programmed {rate} ({err}), ErrorID {d['rc']}")
+
+
+def check_rts_timing(port, lead, late, before, after, ch):
+    """RTS around each frame (lead: asserted before its first byte, late: released after its
+    last bit, us): at least DirBeforeUs before, never before the last bit, and released within
+    one character + DirAfterUs of it (the median: QEMU's vCPU thread is now and then not
+    scheduled for milliseconds on a loaded machine, both edges then move; the maximum is
+    printed, not asserted; tcdrain's jiffy, 9 ms late at 9600, is far outside)."""
+    if not late:
+        return
+    print(f"      {port} RTS: before the first byte {min(lead):.0f}..{max(lead):.0f} us "
+          f"(DirBeforeUs {before}); released {min(late):.0f}..{max(late):.0f} us after the "
+          f"frame's last bit (one character {ch:.0f} us + DirAfterUs {after})")
+    check(min(lead) >= before, f"{port} RTS asserted at least DirBeforeUs before the first byte")
+    check(min(late) >= 0, f"{port} RTS never released before the frame's last bit")
+    median = sorted(late)[len(late) // 2]
+    check(median <= ch + after + TCG_SLACK_US,
+          f"{port} RTS released within one character + DirAfterUs of the last bit, median "
+          f"{median:.0f} us (+{TCG_SLACK_US} us for the guest's timers under TCG)")
+
+
 def programmed_rate(events, port):
     """The rate the driver programmed for our 8N2 line in these events (the port's close
     programs the next open's default, 9600 8N1, afterwards): the 16550's divisor
@@ -107,24 +151,7 @@ def group_drivers(bed, program):
               f"back ({pulled})")
     # bauds: what the driver programmed is what was asked (1 %), or ErrorID 14 naming it
     for port in (S1, U0):
-        for d in results(run.output, "bauds"):
-            if d["port"] != port:
-                continue
-            asked = d["asked"]
-            rate = programmed_rate(until_next_mark(run, f"baud {asked} {port}"), port)
-            ok_rate = rate is not None and abs(rate - asked) <= asked * TOLERANCE
-            said = [ln for ln in run.output.splitlines()
-                    if ln.startswith(f"mbfb: {port}: {asked} baud asked")]
-            if d["rc"] == 0:
-                check(ok_rate, f"{port} {asked}: the driver programmed {rate}, within 1 %")
-            else:
-                check(d["rc"] == 14 and not ok_rate and len(said) == 1 and
-                      f"would run at {rate} " in said[0],
-                      f"{port} {asked}: ErrorID {d['rc']}, the driver programmed {rate}, "
-                      f"the shims said: {said}")
-            check(d["sim_heard"] == 0 if d["rc"] else d["sim_heard"] > 0,
-                  f"{port} {asked}: the simulator heard {d['sim_heard']} bytes")
-            print(f"      {port} asked {asked}: programmed {rate}, ErrorID {d['rc']}")
+        check_bauds(run, port, lambda events, port=port: programmed_rate(events, port))
     # Direction KERNEL: the 8250 driver here and ftdi_sio have no RS-485 mode: ErrorID 15 and
     # nothing reached the simulator
     for port in (S1, U0):
@@ -186,19 +213,7 @@ def group_rts(bed, program):
         late.append((off - last_bit) * 1e6)
         reply = next((t for t in replies if t > on), None)
         check(reply is None or reply > off, f"{S1}: RTS released before the reply was read")
-    if lead:
-        print(f"      {S1}: RTS before the first byte {min(lead):.0f}..{max(lead):.0f} us "
-              f"(DirBeforeUs {before}); released {min(late):.0f}..{max(late):.0f} us after the "
-              f"frame's last bit (one character {ch:.0f} us + DirAfterUs {after})")
-        check(min(lead) >= before, f"{S1}: RTS asserted at least DirBeforeUs before the first byte")
-        check(min(late) >= 0, f"{S1}: RTS never released before the frame's last bit")
-        # the median: QEMU's vCPU thread is now and then not scheduled for milliseconds on a
-        # loaded machine (both edges then move; the maximum is printed above, not asserted);
-        # tcdrain's jiffy (9 ms late at 9600) is far outside
-        median = sorted(late)[len(late) // 2]
-        check(median <= ch + after + TCG_SLACK_US,
-              f"{S1}: RTS released within one character + DirAfterUs of the last bit, median "
-              f"{median:.0f} us (+{TCG_SLACK_US} us for the guest's timers under TCG)")
+    check_rts_timing(S1, lead, late, before, after, ch)
     # FTDI: RTS is a control transfer (FTDI_SIO_SET_MODEM_CTRL, request 0x4001: value bit 9
     # says RTS is set, bit 1 its level);
     # the data's bulk transfers are not traced: the pulse must last the frame's wire time and

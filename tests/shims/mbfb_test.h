@@ -9,6 +9,7 @@
 #include <pthread.h>
 #include <stdint.h>
 #include <stdio.h>
+#include <sys/types.h>
 
 #include "mbfb.h"
 
@@ -172,6 +173,8 @@ int t_wait(int req);
 /** post + wait + take. Returns mbfb_take's result (or the post error). */
 int t_run(int dev, int fc, int addr, int count, const uint16_t *vals, uint16_t *out,
           int max);
+/** mbfb_post_write + wait + take. Returns mbfb_take's result (or the post error). */
+int t_run_write(int dev, int fc, int addr, int count, const uint16_t *vals, int policy);
 /** Bus config helper. */
 mbfb_bus_config_t t_cfg(const char *port, int baud, int framing, int timeout_ms,
                         int retries);
@@ -198,6 +201,8 @@ typedef struct t_case {
  *  whose "framing: name" contains text. */
 int t_serial_scenarios(const char *test, int *framing, const t_case_t *cases, int n);
 void t_sleep_ms(int ms);
+/** A child process the test started: SIGTERM, then reaped (nothing when pid <= 0). */
+void t_stop_child(pid_t pid);
 void t_sleep_us(long us);
 int64_t t_now_us(void);
 /** Reads and writes of every function against pymodbus_peer.py (its registers: holding

@@ -7,10 +7,12 @@
 #include <fcntl.h>
 #include <poll.h>
 #include <pty.h>
+#include <signal.h>
 #include <stdlib.h>
 #include <string.h>
 #include <sys/ioctl.h>
 #include <sys/stat.h>
+#include <sys/wait.h>
 #include <termios.h>
 #include <time.h>
 #include <unistd.h>
@@ -116,6 +118,14 @@ void t_sleep_us(long us)
 void t_sleep_ms(int ms)
 {
     t_sleep_us((long)ms * 1000);
+}
+
+void t_stop_child(pid_t pid)
+{
+    if (pid > 0) {
+        kill(pid, SIGTERM);
+        waitpid(pid, NULL, 0);
+    }
 }
 
 /* Under $TMPDIR when it is set and short (test.sh points it into the build tree, so a run
@@ -646,6 +656,15 @@ int t_run(int dev, int fc, int addr, int count, const uint16_t *vals, uint16_t *
         return h;
     t_wait(h);
     return mbfb_take(h, out, max);
+}
+
+int t_run_write(int dev, int fc, int addr, int count, const uint16_t *vals, int policy)
+{
+    int h = mbfb_post_write(dev, fc, addr, count, vals, policy);
+    if (h < 0)
+        return h;
+    t_wait(h);
+    return mbfb_take(h, NULL, 0);
 }
 
 mbfb_bus_config_t t_cfg(const char *port, int baud, int framing, int timeout_ms, int retries)

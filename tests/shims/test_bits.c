@@ -103,15 +103,6 @@ static void set_bits(int fc, int addr, int n, const char *bytes_hex)
         peer_set_bit(&P, fc, 1, addr + i, (b[i / 8] >> (i % 8)) & 1);
 }
 
-static int run_write(int dev, int fc, int addr, int count, const uint16_t *v, int policy)
-{
-    int h = mbfb_post_write(dev, fc, addr, count, v, policy);
-    if (h < 0)
-        return h;
-    t_wait(h);
-    return mbfb_take(h, NULL, 0);
-}
-
 static void reads(void)
 {
     uint16_t v[8];
@@ -153,7 +144,7 @@ static void writes(void)
     int dev = setup(M_NORMAL, 1);
 
     v[0] = 1;
-    CHECK_EQ(run_write(dev, MBFB_FC_WRITE_COIL, 0xAC, 1, v, MBFB_WRITE_ONCE), 0);
+    CHECK_EQ(t_run_write(dev, MBFB_FC_WRITE_COIL, 0xAC, 1, v, MBFB_WRITE_ONCE), 0);
     check_wire(0, "01 05 00 AC FF 00");
     CHECK_EQ(peer_coil(&P, 1, 0xAC), 1);
     v[0] = 0;
@@ -161,7 +152,7 @@ static void writes(void)
     check_wire(1, "01 05 00 AC 00 00");
     CHECK_EQ(peer_coil(&P, 1, 0xAC), 0);
     v[0] = 0xFDCD; /* 10 coils 1011 0011 10: the bits past them are not sent */
-    CHECK_EQ(run_write(dev, MBFB_FC_WRITE_COILS, 0x13, 10, v, MBFB_WRITE_IDEMPOTENT), 0);
+    CHECK_EQ(t_run_write(dev, MBFB_FC_WRITE_COILS, 0x13, 10, v, MBFB_WRITE_IDEMPOTENT), 0);
     check_wire(2, "01 0F 00 13 00 0A 02 CD 01");
     for (int i = 0; i < 10; i++)
         CHECK_EQ(peer_coil(&P, 1, 0x13 + i), (0x01CD >> i) & 1);
@@ -203,7 +194,7 @@ static void echo_lost(void)
     int dev = setup(M_ECHO_LOST, 3);
 
     /* FC05 applied, echo lost: the read-back (FC01 of that coil) shows it */
-    CHECK_EQ(run_write(dev, MBFB_FC_WRITE_COIL, 40, 1, v, MBFB_WRITE_ONCE), 0);
+    CHECK_EQ(t_run_write(dev, MBFB_FC_WRITE_COIL, 40, 1, v, MBFB_WRITE_ONCE), 0);
     CHECK_EQ(peer_coil(&P, 1, 40), 1);
     CHECK_EQ(__atomic_load_n(&applied, __ATOMIC_ACQUIRE), 1);
     CHECK_EQ(__atomic_load_n(&writes_seen, __ATOMIC_ACQUIRE), 1); /* never sent twice */
@@ -215,7 +206,7 @@ static void echo_lost(void)
     /* FC15 ONCE applied, echo lost: DONE by FC01 of the 10 coils */
     dev = setup(M_ECHO_LOST, 3);
     v[0] = 0x0235;
-    CHECK_EQ(run_write(dev, MBFB_FC_WRITE_COILS, 100, 10, v, MBFB_WRITE_ONCE), 0);
+    CHECK_EQ(t_run_write(dev, MBFB_FC_WRITE_COILS, 100, 10, v, MBFB_WRITE_ONCE), 0);
     for (int i = 0; i < 10; i++)
         CHECK_EQ(peer_coil(&P, 1, 100 + i), (0x0235 >> i) & 1);
     CHECK_EQ(__atomic_load_n(&writes_seen, __ATOMIC_ACQUIRE), 1);
@@ -225,7 +216,7 @@ static void echo_lost(void)
 
     /* FC15 ONCE not applied: the read-back shows the old coils -> UNCONFIRMED, sent once */
     dev = setup(M_NOT_APPLIED, 3);
-    CHECK_EQ(run_write(dev, MBFB_FC_WRITE_COILS, 100, 10, v, MBFB_WRITE_ONCE),
+    CHECK_EQ(t_run_write(dev, MBFB_FC_WRITE_COILS, 100, 10, v, MBFB_WRITE_ONCE),
              -MBFB_E_UNCONFIRMED);
     CHECK_EQ(__atomic_load_n(&writes_seen, __ATOMIC_ACQUIRE), 1);
     CHECK_EQ(__atomic_load_n(&applied, __ATOMIC_ACQUIRE), 0);
@@ -234,7 +225,7 @@ static void echo_lost(void)
     /* FC05 IDEMPOTENT not applied: read back OFF -> sent again, applied once */
     dev = setup(M_NOT_APPLIED, 3);
     v[0] = 1;
-    CHECK_EQ(run_write(dev, MBFB_FC_WRITE_COIL, 7, 1, v, MBFB_WRITE_IDEMPOTENT), 0);
+    CHECK_EQ(t_run_write(dev, MBFB_FC_WRITE_COIL, 7, 1, v, MBFB_WRITE_IDEMPOTENT), 0);
     CHECK_EQ(peer_coil(&P, 1, 7), 1);
     CHECK_EQ(__atomic_load_n(&writes_seen, __ATOMIC_ACQUIRE), 2);
     CHECK_EQ(__atomic_load_n(&applied, __ATOMIC_ACQUIRE), 1);

@@ -27,14 +27,6 @@ static pid_t spawn(char *const argv[], int out_fd)
     return pid;
 }
 
-static void stop(pid_t pid)
-{
-    if (pid > 0) {
-        kill(pid, SIGTERM);
-        waitpid(pid, NULL, 0);
-    }
-}
-
 static int wait_path(const char *path)
 {
     struct stat st;
@@ -80,8 +72,8 @@ static void run(const char *framer, int framing)
     CHECK_EQ(v[0], 0x3001);
     t_pymodbus_conversation(dev);
     mbfb_shutdown();
-    stop(p_pid);
-    stop(s_pid);
+    t_stop_child(p_pid);
+    t_stop_child(s_pid);
 }
 
 int main(void)

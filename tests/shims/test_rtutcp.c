@@ -54,14 +54,6 @@ static pid_t spawn_ready(char *const argv[], char *line, int n)
     return pid;
 }
 
-static void stop(pid_t pid)
-{
-    if (pid > 0) {
-        kill(pid, SIGTERM);
-        waitpid(pid, NULL, 0);
-    }
-}
-
 /* One request on the simulator's control socket; 1 if it answered ok. */
 static int control(const char *json)
 {
@@ -215,7 +207,7 @@ static void sim(void)
     mbfb_shutdown();
 
     /* nothing listens: connection refused = NOPORT */
-    stop(pid);
+    t_stop_child(pid);
     dev = open_dev(port, MBFB_FRAMING_RTU, 0);
     CHECK_EQ(t_run(dev, 3, 3, 1, NULL, v, 1), -MBFB_E_NOPORT);
     mbfb_shutdown();
@@ -237,7 +229,7 @@ static void pymodbus(void)
     CHECK_EQ(v[0], 0x3001);
     t_pymodbus_conversation(dev);
     mbfb_shutdown();
-    stop(pid);
+    t_stop_child(pid);
 }
 
 static void conflict(void)

@@ -65,15 +65,6 @@ static void teardown(void)
     peer_stop(&P);
 }
 
-static int run_write(int dev, int fc, int addr, int count, const uint16_t *v, int policy)
-{
-    int h = mbfb_post_write(dev, fc, addr, count, v, policy);
-    if (h < 0)
-        return h;
-    t_wait(h);
-    return mbfb_take(h, NULL, 0);
-}
-
 static uint16_t peer_reg(int addr)
 {
     uint16_t v;
@@ -88,9 +79,9 @@ static void false_fc16(void)
     uint16_t a[2] = {111, 0}, b[2] = {222, 0};
     int dev = setup(M_LATE_DEAF, 3);
 
-    CHECK_EQ(run_write(dev, 16, 0, 2, a, MBFB_WRITE_ONCE), 0); /* read back: applied */
+    CHECK_EQ(t_run_write(dev, 16, 0, 2, a, MBFB_WRITE_ONCE), 0); /* read back: applied */
     CHECK_EQ(peer_reg(0), 111);
-    CHECK_EQ(run_write(dev, 16, 0, 2, b, MBFB_WRITE_ONCE), 0);
+    CHECK_EQ(t_run_write(dev, 16, 0, 2, b, MBFB_WRITE_ONCE), 0);
     CHECK_EQ(peer_reg(0), 222); /* DONE means the device holds it */
     CHECK_EQ(__atomic_load_n(&applied, __ATOMIC_ACQUIRE), 2); /* each exactly once */
     CHECK(t_diag(dev).resyncs >= 1);
@@ -99,8 +90,8 @@ static void false_fc16(void)
     /* no retries: A's outcome is unknown and cannot be resolved in its one attempt;
      * B, posted at once, is never confirmed by A's late echo */
     dev = setup(M_LATE_DEAF, 0);
-    CHECK_EQ(run_write(dev, 16, 0, 2, a, MBFB_WRITE_ONCE), -MBFB_E_UNCONFIRMED);
-    int rc = run_write(dev, 16, 0, 2, b, MBFB_WRITE_ONCE);
+    CHECK_EQ(t_run_write(dev, 16, 0, 2, a, MBFB_WRITE_ONCE), -MBFB_E_UNCONFIRMED);
+    int rc = t_run_write(dev, 16, 0, 2, b, MBFB_WRITE_ONCE);
     CHECK(rc != 0 || peer_reg(0) == 222); /* DONE only if the device holds B */
     CHECK(__atomic_load_n(&applied, __ATOMIC_ACQUIRE) <= 2);
     teardown();
@@ -110,7 +101,7 @@ static void echo_lost(void)
 {
     uint16_t v[1] = {0x4242};
     int dev = setup(M_ECHO_LOST, 3);
-    CHECK_EQ(run_write(dev, 6, 5, 1, v, MBFB_WRITE_IDEMPOTENT), 0);
+    CHECK_EQ(t_run_write(dev, 6, 5, 1, v, MBFB_WRITE_IDEMPOTENT), 0);
     CHECK_EQ(peer_reg(5), 0x4242);
     CHECK_EQ(__atomic_load_n(&applied, __ATOMIC_ACQUIRE), 1); /* not applied twice */
     CHECK_EQ(__atomic_load_n(&writes_seen, __ATOMIC_ACQUIRE), 1);
@@ -121,7 +112,7 @@ static void not_applied(void)
 {
     uint16_t v[2] = {7, 8};
     int dev = setup(M_NOT_APPLIED, 3);
-    CHECK_EQ(run_write(dev, 16, 3, 2, v, MBFB_WRITE_IDEMPOTENT), 0);
+    CHECK_EQ(t_run_write(dev, 16, 3, 2, v, MBFB_WRITE_IDEMPOTENT), 0);
     CHECK_EQ(peer_reg(3), 7);
     CHECK_EQ(peer_reg(4), 8);
     CHECK_EQ(__atomic_load_n(&writes_seen, __ATOMIC_ACQUIRE), 2); /* resent once */
@@ -139,7 +130,7 @@ static void once_never_twice(void)
 {
     uint16_t v[1] = {0x0301};
     int dev = setup(M_NOT_APPLIED, 3);
-    CHECK_EQ(run_write(dev, 6, 2, 1, v, MBFB_WRITE_ONCE), -MBFB_E_UNCONFIRMED);
+    CHECK_EQ(t_run_write(dev, 6, 2, 1, v, MBFB_WRITE_ONCE), -MBFB_E_UNCONFIRMED);
     CHECK_EQ(__atomic_load_n(&writes_seen, __ATOMIC_ACQUIRE), 1); /* never sent twice */
     CHECK_EQ(__atomic_load_n(&applied, __ATOMIC_ACQUIRE), 0);
     CHECK(strstr(mbfb_strerror(MBFB_E_UNCONFIRMED), "unconfirmed") != NULL);
@@ -151,7 +142,7 @@ static void exception_write(void)
 {
     uint16_t v[1] = {5};
     int dev = setup(M_EXCEPTION, 3);
-    CHECK_EQ(run_write(dev, 6, 2, 1, v, MBFB_WRITE_ONCE), -(MBFB_E_EXCEPTION_BASE + 3));
+    CHECK_EQ(t_run_write(dev, 6, 2, 1, v, MBFB_WRITE_ONCE), -(MBFB_E_EXCEPTION_BASE + 3));
     CHECK_EQ(peer_count(&P), 1); /* a definite answer: no read-back, no resend */
     teardown();
 }
