@@ -217,7 +217,7 @@ def run_plant(exe, home, v4, venvs, tmp, sim, bus, kind):
     try:
         daemon.wait_status("RUNNING", 30)
         client = SlaveClient(daemon.pid)
-        want = ((RELAY_INPUTS, METER_WORDS))
+        want = (RELAY_INPUTS, METER_WORDS)
         view = wait(lambda: (lambda v: v if v and v[0] == want else None)(client.view()), 60,
                     f"{kind}: the devices' values in the program at %IX100.0.. and %IW100..", daemon)
         print(f"{kind}: the program saw the devices' values {time.monotonic() - t0:.1f} s after plc_main started")
