@@ -195,6 +195,22 @@ def test_generated_single_writes_and_periods():
     assert "Period := T#200ms,\n    Fc1 := 4" in st and "Period := T#1000ms,\n    Fc1 := 3" in st
 
 
+def test_v4_standalone_notes_that_runtime_v4_keeps_i_per_program(tmp_path):
+    """Runtime v4 never passes a program's %I writes on (strucpp_v4_import shows the image's
+    %IW100 at 0 with the blocks): a v4 PROGRAM of its own gets one note, --into none, v3 none."""
+    res = run(os.path.join(FIX, "v4_plant.json"), "-o", "-")
+    assert res.returncode == 0 and res.stdout
+    assert res.stderr.splitlines() == [
+        "oplc_import: note: Runtime v4 passes no program's writes to %I on to other programs or "
+        "plugins: put this into the program that uses the addresses (--into FILE)"]
+    user = tmp_path / "main.st"
+    user.write_text(USER)
+    res = run(os.path.join(FIX, "v4_plant.json"), "--into", str(user), "-o", "-")
+    assert res.returncode == 0 and res.stderr == ""
+    res = run(os.path.join(FIX, "plant.cfg"), "-o", "-")
+    assert res.returncode == 0 and res.stderr == ""
+
+
 def test_packing_over_125_words():
     d = readers.Device("x", "/dev/ttyUSB0", 1, 9600, "N", 8, 1)
     for fc, n in ((4, 100), (3, 100), (2, 2000), (1, 16)):

@@ -9,7 +9,7 @@ written. Python standard library only.
 
     oplc_import.py mbconfig.cfg -o slaves.st                # a PROGRAM of its own
     oplc_import.py mbconfig.cfg --into main.st -o main_mb.st # into the program using %IW100..
-    oplc_import.py modbus_master.json --v4 -o slaves.st
+    oplc_import.py modbus_master.json --into main.st -o main_mb.st  # Runtime v4: --into
 """
 from __future__ import annotations
 
@@ -24,6 +24,11 @@ import readers  # noqa: E402
 from readers import Problem  # noqa: E402
 
 PROG = "oplc_import"
+# Runtime v4 copies %I into each program before its scan and never commits a program's writes
+# to %I (core/src/plc_app/image_tables.cpp, copy-out): a PROGRAM of its own filling %IW100 fills
+# it for nobody else.
+V4_NOTE = (f"{PROG}: note: Runtime v4 passes no program's writes to %I on to other programs or "
+           "plugins: put this into the program that uses the addresses (--into FILE)")
 
 
 class Parser(argparse.ArgumentParser):
@@ -53,13 +58,14 @@ def parse_args(argv):
 
 
 def convert(args) -> tuple[str | None, list]:
-    """(the ST text, problems); text None when there are problems."""
+    """(the ST text, problems); text None when there are problems. Sets args.v4 to the format
+    read."""
     try:
         with open(args.config, encoding="utf-8") as fh:
             text = fh.read()
     except (OSError, UnicodeDecodeError) as err:
         raise Problem("OI-01", args.config, getattr(err, "strerror", None) or str(err)) from None
-    v4 = args.v4 or (not args.v3 and text.lstrip().startswith("["))
+    v4 = args.v4 = args.v4 or (not args.v3 and text.lstrip().startswith("["))
     source = os.path.basename(args.config)
     if v4:
         devices, _, problems = readers.read_v4(text, source)
@@ -115,6 +121,8 @@ def main(argv=None) -> int:
         for p in problems:
             print(f"{PROG}: error {p.pid}: {p.where}: {p.what}", file=sys.stderr)
         return 2                        # and nothing written
+    if args.v4 and not args.into:
+        print(V4_NOTE, file=sys.stderr)
     if args.output == "-":
         sys.stdout.write(text)
         return 0
