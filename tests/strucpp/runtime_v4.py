@@ -58,6 +58,8 @@ def fail(msg, daemon=None):
 
 
 def wait(pred, timeout, what, daemon=None):
+    """pred()'s first truthy value, polled every 50 ms; after timeout s, fail() naming what
+    (with the daemon's log)."""
     end = time.monotonic() + timeout
     while time.monotonic() < end:
         v = pred()
@@ -65,6 +67,21 @@ def wait(pred, timeout, what, daemon=None):
             return v
         time.sleep(0.05)
     fail(f"{what} (waited {timeout} s)", daemon)
+
+
+def runtime_home(v4):
+    """Runtime v4's source tree (rtv4.runtime_v4_home), once STruC++ and the v4 package are
+    built in v4 and the runtime can be built; else skip() with the reason."""
+    if os.environ.get("MBFB_STRUCPP_REASON"):
+        skip(os.environ["MBFB_STRUCPP_REASON"])
+    if not os.path.exists(os.path.join(v4, "strucpp", "dist", "index.js")) or \
+            not os.path.exists(os.path.join(v4, "package", "mbfb", "library.properties")):
+        skip(f"STruC++ or the v4 package is not built in {v4}: strucpp_build builds them and says why it could not")
+    home = rtv4.runtime_v4_home()
+    reason = rtv4.missing(home)
+    if reason:
+        skip(reason)
+    return home
 
 
 def translate(st, tmp):
@@ -101,15 +118,7 @@ def fc06(frames, slave):
 
 def main():
     build_dir, v4 = sys.argv[1], sys.argv[2]
-    if os.environ.get("MBFB_STRUCPP_REASON"):
-        skip(os.environ["MBFB_STRUCPP_REASON"])
-    if not os.path.exists(os.path.join(v4, "strucpp", "dist", "index.js")) or \
-            not os.path.exists(os.path.join(v4, "package", "mbfb", "library.properties")):
-        skip(f"STruC++ or the v4 package is not built in {v4}: strucpp_build builds them and says why it could not")
-    home = rtv4.runtime_v4_home()
-    reason = rtv4.missing(home)
-    if reason:
-        skip(reason)
+    home = runtime_home(v4)
     print(f"Runtime v4: {home} {rtv4.version(home)}; Makefile.strucpp "
           f"{'with' if rtv4.has_libraries_support(home) else 'without (v4/libraries.mk added)'} libraries/ support")
     try:

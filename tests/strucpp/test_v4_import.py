@@ -39,7 +39,7 @@ ROOT = os.path.dirname(os.path.dirname(HERE))
 sys.path.insert(0, os.path.join(ROOT, "tools", "openplc"))
 sys.path.insert(0, os.path.join(ROOT, "tools", "sim"))
 import rtv4  # noqa: E402
-from runtime_v4 import fail, skip, translate  # noqa: E402
+from runtime_v4 import fail, runtime_home, skip, translate, wait  # noqa: E402
 from simctl import Simulator  # noqa: E402
 
 LINE = os.path.join(ROOT, "tests", "oplc_import")
@@ -147,17 +147,6 @@ class SlaveClient:
             self.proc.wait()
 
 
-def wait(pred, timeout, what, daemon):
-    """pred()'s first truthy value, polled every 0.1 s (runtime_v4.wait's, with a value)."""
-    end = time.monotonic() + timeout
-    while time.monotonic() < end:
-        v = pred()
-        if v:
-            return v
-        time.sleep(0.1)
-    fail(f"{what} (waited {timeout} s)", daemon)
-
-
 def frames(sim, head):
     return sum(1 for f in sim.log(clear=False) if f["dir"] == "rx" and f["hex"].startswith(head))
 
@@ -257,15 +246,7 @@ def run_plant(exe, home, v4, venvs, tmp, sim, bus, kind):
 
 def main():
     build_dir, v4 = sys.argv[1], sys.argv[2]
-    if os.environ.get("MBFB_STRUCPP_REASON"):
-        skip(os.environ["MBFB_STRUCPP_REASON"])
-    if not os.path.exists(os.path.join(v4, "strucpp", "dist", "index.js")) or \
-            not os.path.exists(os.path.join(v4, "package", "mbfb", "library.properties")):
-        skip(f"STruC++ or the v4 package is not built in {v4}: strucpp_build builds them and says why it could not")
-    home = rtv4.runtime_v4_home()
-    reason = rtv4.missing(home)
-    if reason:
-        skip(reason)
+    home = runtime_home(v4)
     for p in ("modbus_master", "modbus_slave"):
         if not os.path.exists(os.path.join(home, PLUGINS, p, "requirements.txt")):
             skip(f"Runtime v4 at {home} has no {p} plugin ({PLUGINS}/{p})")
