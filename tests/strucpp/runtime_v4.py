@@ -84,6 +84,15 @@ def runtime_home(v4):
     return home
 
 
+def plc_main(build_dir, home):
+    """plc_main built from the runtime's source in the build tree (rtv4.build_plc_main);
+    fail() when it does not build."""
+    try:
+        return rtv4.build_plc_main(home, os.path.join(build_dir, "v4", "openplc-runtime"))
+    except RuntimeError as e:
+        fail(str(e))
+
+
 def translate(st, tmp):
     """The program for STruC++: translate.py's workarounds (v4/README.md, gap G1: the
     example's MB_LINE initialiser)."""
@@ -121,10 +130,7 @@ def main():
     home = runtime_home(v4)
     print(f"Runtime v4: {home} {rtv4.version(home)}; Makefile.strucpp "
           f"{'with' if rtv4.has_libraries_support(home) else 'without (v4/libraries.mk added)'} libraries/ support")
-    try:
-        exe = rtv4.build_plc_main(home, os.path.join(build_dir, "v4", "openplc-runtime"))
-    except RuntimeError as e:
-        fail(str(e))
+    exe = plc_main(build_dir, home)
 
     tmp = tempfile.mkdtemp(prefix="mbfb-rtv4-")
     try:

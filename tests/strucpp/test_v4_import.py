@@ -39,7 +39,7 @@ ROOT = os.path.dirname(os.path.dirname(HERE))
 sys.path.insert(0, os.path.join(ROOT, "tools", "openplc"))
 sys.path.insert(0, os.path.join(ROOT, "tools", "sim"))
 import rtv4  # noqa: E402
-from runtime_v4 import fail, runtime_home, skip, translate, wait  # noqa: E402
+from runtime_v4 import fail, plc_main, runtime_home, skip, translate, wait  # noqa: E402
 from simctl import Simulator  # noqa: E402
 
 LINE = os.path.join(ROOT, "tests", "oplc_import")
@@ -263,10 +263,7 @@ def main():
         except RuntimeError as e:
             skip(f"the {p} plugin's Python packages ({PLUGINS}/{p}/requirements.txt) could not be installed: {e}")
     print(f"Runtime v4: {home} {rtv4.version(home)}")
-    try:
-        exe = rtv4.build_plc_main(home, os.path.join(build_dir, "v4", "openplc-runtime"))
-    except RuntimeError as e:
-        fail(str(e))
+    exe = plc_main(build_dir, home)
 
     tmp = tempfile.mkdtemp(prefix="mbfb-v4import-")
     try:
