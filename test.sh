@@ -26,9 +26,23 @@ scripts/deps.sh     # Debian packages (.ci/apt-packages.txt); no-op when all pre
 scripts/venv.sh     # pinned Python in ./.venv
 b=${MBFB_BUILD_DIR:-build}
 mkdir -p "$b"
+# ccache (Debian's, .ci/apt-packages.txt): a compile whose preprocessed input, flags and compiler
+# are those of an earlier one on this machine comes from its cache (CCACHE_DIR, default
+# ~/.cache/ccache), in this tree and in every CMake tree the tests make (the launcher variables
+# in the environment set their first configure). Paths under this checkout are hashed relative
+# to it, so another clone hits the same entries. MBFB_CCACHE=0: no cache.
+launcher=""
+if [ "${MBFB_CCACHE:-1}" != 0 ] && command -v ccache >/dev/null; then
+    launcher=ccache
+    export CMAKE_C_COMPILER_LAUNCHER=ccache CMAKE_CXX_COMPILER_LAUNCHER=ccache
+    export CCACHE_BASEDIR=$PWD CCACHE_NOHASHDIR=true
+else
+    unset CMAKE_C_COMPILER_LAUNCHER CMAKE_CXX_COMPILER_LAUNCHER
+fi
 log=$b/configure.log
 set +e
-cmake -S . -B "$b" -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo 2>&1 | tee "$log" |
+cmake -S . -B "$b" -G Ninja -DCMAKE_BUILD_TYPE=RelWithDebInfo \
+      -DCMAKE_C_COMPILER_LAUNCHER="$launcher" -DCMAKE_CXX_COMPILER_LAUNCHER="$launcher" 2>&1 | tee "$log" |
     grep --line-buffered -E -- '^-- ((toolchain|matiec|OpenPLC v3 runtime|fb|plc_lib):|c_shims: (libmodbus|OpenPLC))|Error'
 status=${PIPESTATUS[0]}
 set -e

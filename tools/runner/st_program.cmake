@@ -38,10 +38,13 @@ function(mbfb_st_program target dir)
   else()
     add_executable(${target} ${dir}/Config0.c ${dir}/Res0.c ${dir}/glue.c)
   endif()
-  # As OpenPLC's compile_program.sh: g++ -std=gnu++11 -I core/lib -w; c_blocks.h reaches the
-  # shims header there (plc_lib), here it is force-included.
+  # As OpenPLC's compile_program.sh: g++ -std=gnu++11 -I core/lib -w, no -O and no -g (the
+  # build type's flags do not apply: -O0 -g0 after them); c_blocks.h reaches the shims header
+  # there (plc_lib), here it is force-included. matiec's code at -O2 -g took 4 times the
+  # compile time of -O0 for nothing a test needs.
   target_include_directories(${target} PRIVATE ${MBFB_IEC_CINC} ${_here} ${dir})
-  target_compile_options(${target} PRIVATE $<$<COMPILE_LANGUAGE:CXX>:-std=gnu++11> -w ${_incl})
+  target_compile_options(${target} PRIVATE $<$<COMPILE_LANGUAGE:CXX>:-std=gnu++11> -w -O0 -g0
+                         ${_incl})
   target_link_libraries(${target} PRIVATE ${_host})
   mbfb_set_rpath(${target} default)
 endfunction()
