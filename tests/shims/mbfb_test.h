@@ -198,7 +198,9 @@ typedef struct t_case {
  *  case runs in one framing only, case c in framing (c + k) mod 3, so every case and every
  *  framing still run under the sanitizer without repeating the long waits that the plain
  *  flavours run in full. MBFB_TEST_CASE=text (by hand, to repeat one case): only the cases
- *  whose "framing: name" contains text. */
+ *  whose "framing: name" contains text. A case that fails while a thread of the test woke up
+ *  more than MBFB_TEST_LATENCY_MS (default 20) late runs again, its checks taken back, at
+ *  most 3 runs in all (mbfb_test_peer.c: the machine's latency during a scenario). */
 int t_serial_scenarios(const char *test, int *framing, const t_case_t *cases, int n);
 void t_sleep_ms(int ms);
 /** A child process the test started: SIGTERM, then reaped (nothing when pid <= 0). */
