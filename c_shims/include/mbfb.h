@@ -138,6 +138,8 @@ extern "C" {
 
 /* ---- setup ---------------------------------------------------------------- */
 
+#define MBFB_DEFAULT_RETRIES 3 /* retries < 0: SetPro manual 5.6, retry at least 3 times */
+
 /** Bus settings. Zero-initialise, then fill what you need. */
 typedef struct mbfb_bus_config {
     const char *port;         /* "/dev/ttyUSB0", a pty path, or "tcp://127.0.0.1:1502" */
@@ -147,7 +149,8 @@ typedef struct mbfb_bus_config {
     int stop_bits;            /* 1 or 2                                               */
     int framing;              /* MBFB_FRAMING_*                                         */
     int response_timeout_ms;  /* 0 = derived from frame lengths and baud               */
-    int retries;              /* extra attempts after the first; <0 = default (3)      */
+    int retries;              /* extra attempts after the first; <0 = default
+                                 (MBFB_DEFAULT_RETRIES)                              */
     int direction;            /* MBFB_DIR_*: who switches an RS-485 transceiver (serial) */
     int dir_active_low;       /* 1: RTS released / the GPIO low while sending (the line's
                                  idle level is the other one); 0: asserted / high       */

@@ -114,7 +114,6 @@ static inline int mbfb_data_words(int fc, int count)
 #define MBFB_MAX_TIMEOUT_MS  60000 /* response_timeout_ms at most (a minute)         */
 #define MBFB_SCAN_MAX_MS     60000 /* a longer gap between takes is a stop, not a task's
                                       interval (the bound does not learn from it)     */
-#define MBFB_DEFAULT_RETRIES 3  /* SetPro manual 5.6: retry at least 3 times      */
 #define MBFB_OFFLINE_AFTER   3  /* consecutive failed transactions -> back-off    */
 /* A device in back-off is probed (one attempt) once per probe interval: at least
  * MBFB_PROBE_MIN_MS, and MBFB_PROBE_SHARE response timeouts, so a dead device costs at

@@ -91,8 +91,8 @@ def test_status_per_device(line):
     sim.ctl("offline", addr=5, on=True)
     wait(lambda: get(plc, "DEV1_VALID") == "false", "the meter's Valid to fall")
     wait(lambda: get(plc, "DEV1_ERRORID") != "0", "the meter's ErrorID")
-    # the relays share the line: while the meter's requests time out they may go stale too
-    # (their data is late: honest), and are Valid again once the shims back off from the meter
+    # the relays share the line: the default StaleTime counts its Timeout (5 x 1000 ms: the
+    # meter's unanswered requests and the wait after each), so they stay Valid (t_neighbour.st)
     wait(lambda: get(plc, "DEV0_VALID") == "true", "the relays Valid beside the silent meter")
     assert get(plc, "DEV1_VALID") == "false"
     assert plc.snapshot()["IW"]["100"] == METER_INPUTS[0]     # the last value held, as v3 does
