@@ -38,6 +38,11 @@ extern const char *t_scenario;
         }                                                                               \
     } while (0)
 
+/** A thread of the test was `us` later than it meant to be (the peer's replies, the latency
+ *  monitor): the most of these since a scenario began decides whether its failure counts
+ *  (t_serial_scenarios). */
+void t_note_late(int64_t us);
+
 /** After a failed check: the first one of a scenario prints the log of the peer started
  *  last (each request and reply, its time in the scenario), to tell a race from a bug. */
 void t_failed(void);
@@ -198,9 +203,9 @@ typedef struct t_case {
  *  case runs in one framing only, case c in framing (c + k) mod 3, so every case and every
  *  framing still run under the sanitizer without repeating the long waits that the plain
  *  flavours run in full. MBFB_TEST_CASE=text (by hand, to repeat one case): only the cases
- *  whose "framing: name" contains text. A case that fails while a thread of the test woke up
- *  more than MBFB_TEST_LATENCY_MS (default 20) late runs again, its checks taken back, at
- *  most 3 runs in all (mbfb_test_peer.c: the machine's latency during a scenario). */
+ *  whose "framing: name" contains text. A case that fails while a thread of the test was
+ *  more than MBFB_TEST_LATENCY_MS (default 20) late (t_note_late) runs again, its checks
+ *  taken back, at most 3 runs in all (mbfb_test_peer.c: the machine's latency during a scenario). */
 int t_serial_scenarios(const char *test, int *framing, const t_case_t *cases, int n);
 void t_sleep_ms(int ms);
 /** A child process the test started: SIGTERM, then reaped (nothing when pid <= 0). */

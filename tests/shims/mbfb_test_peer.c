@@ -32,7 +32,18 @@ static peer_t *last_peer;    /* the peer started last: its log is printed on a f
 static int64_t case_t0;      /* when the scenario began (t_serial_scenarios)            */
 static int case_no, dumped_case = -1;
 
+static int64_t lat_max_us;   /* __atomic: the latest a thread of the test was since the
+                                scenario began (t_note_late; t_serial_scenarios)      */
+
 /* ---- assertions ------------------------------------------------------------ */
+void t_note_late(int64_t us)
+{
+    int64_t max = __atomic_load_n(&lat_max_us, __ATOMIC_RELAXED);
+    while (us > max && !__atomic_compare_exchange_n(&lat_max_us, &max, us, 0, __ATOMIC_RELAXED,
+                                                    __ATOMIC_RELAXED)) {
+    }
+}
+
 int t_hex(const char *hex, uint8_t *out)
 {
     int n = 0, hi = -1;
@@ -323,6 +334,7 @@ static void *peer_main(void *arg)
         memset(&r, 0, sizeof r);
         if (flen > 0 && p->fn)
             p->fn(p, n, frame, flen, &r);
+        int64_t due = t_now_us() + (int64_t)r.delay_ms * 1000; /* when the script writes */
         if (r.delay_ms)
             t_sleep_ms(r.delay_ms);
         for (int i = 0; r.hold && i < 10000 && !__atomic_exchange_n(&p->released, 0,
@@ -334,7 +346,11 @@ static void *peer_main(void *arg)
             if (poll(&pf, 1, 20) > 0)
                 break;
         }
+        if (r.hold || r.until_input)
+            due = t_now_us();           /* released now: only its pace can be late */
         peer_write(p, &r);
+        if (r.len > 0) /* how much later than its script the reply was out */
+            t_note_late(t_now_us() - due - (r.pace_us > 0 ? (int64_t)(r.len - 1) * r.pace_us : 0));
         if (r.len > 0 && n < PEER_LOG) {
             pthread_mutex_lock(&p->lock);
             p->t_reply_us[n] = t_now_us();
@@ -765,8 +781,10 @@ int t_read_reply_bytes(int framing, int nregs)
 /* ---- the machine's latency during a scenario -------------------------------------
  * The scenarios' timings (reply timeouts of 100 ms and more, late replies, pauses) hold only
  * while the process's threads run when they wake. A monitor thread sleeps LAT_TICK_US at a
- * time and keeps the most it overslept since the scenario began (as cyclictest measures
- * scheduling latency). A scenario that failed while it overslept more than
+ * time and notes how much it overslept (as cyclictest measures scheduling latency); the
+ * peer notes how much later than its script each reply was out, a paced one included (many
+ * short sleeps, each a little late, add up). A scenario that failed while one of them was
+ * later than
  * MBFB_TEST_LATENCY_MS (default LAT_LIMIT_MS) ran on a machine that did not give it the time
  * its premises need: its checks are taken back and it runs again, at most LAT_RUNS times in
  * all; the last run counts whatever the latency. A failure with the latency within the limit
@@ -774,19 +792,13 @@ int t_read_reply_bytes(int framing, int nregs)
 #define LAT_TICK_US 2000
 #define LAT_LIMIT_MS 20
 #define LAT_RUNS 3
-static int64_t lat_max_us;   /* __atomic: the most overslept since lat_reset */
-
 static void *lat_main(void *arg)
 {
     (void)arg;
     for (;;) {
         int64_t t0 = t_now_us();
         t_sleep_us(LAT_TICK_US);
-        int64_t over = t_now_us() - t0 - LAT_TICK_US;
-        int64_t max = __atomic_load_n(&lat_max_us, __ATOMIC_RELAXED);
-        while (over > max && !__atomic_compare_exchange_n(&lat_max_us, &max, over, 0,
-                                                          __ATOMIC_RELAXED, __ATOMIC_RELAXED)) {
-        }
+        t_note_late(t_now_us() - t0 - LAT_TICK_US);
     }
     return NULL;
 }
@@ -805,7 +817,7 @@ static int run_case(const t_case_t *c, int run)
     if (t_failures == failures || late <= limit_ms * 1000 || run + 1 >= LAT_RUNS)
         return 0;
     fprintf(stderr, "  [%s] run %d of %d: the checks above are taken back: a thread of this "
-            "test woke up to %.1f ms late during it (the scenarios' timings allow %ld ms: "
+            "test was up to %.1f ms late during it (the scenarios' timings allow %ld ms: "
             "MBFB_TEST_LATENCY_MS); run again\n", t_scenario, run + 1, LAT_RUNS,
             (double)late / 1e3, limit_ms);
     t_failures = failures;
