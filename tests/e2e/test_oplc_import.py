@@ -21,33 +21,13 @@ sys.path.insert(0, os.path.join(oplc.ROOT, "tools", "sim"))
 from simctl import Simulator  # noqa: E402
 
 HERE = os.path.join(oplc.ROOT, "tests", "oplc_import")
+sys.path.insert(0, HERE)
+from line_plant import METER_WORDS, RELAY_INPUTS, user_program  # noqa: E402
 PORT = 5502
-RELAY_INPUTS = [True, False, True, True, False, False, True, False]
-METER_WORDS = [2301, 52, 1196, 0, 65535, 7, 8, 9, 0, 0x4248, 0x3333, 0x3F73]
 DI0, COIL0, IR0, HR0 = 800, 800, 100, 100      # %IX100.0, %QX100.0, %IW100, %QW100 on the server
 STATUS_COIL = 0                                # %QX0.0: run B publishes dev1_Valid there
 
-USER = """PROGRAM main
-  VAR
-""" + "".join(f"    in{i} AT %IX100.{i} : BOOL;\n" for i in range(8)) \
-    + "".join(f"    w{i} AT %IW{100 + i} : WORD;\n" for i in range(12)) \
-    + "".join(f"    relay{i} AT %QX100.{i} : BOOL;\n" for i in range(4)) + """    out0 AT %QW100 : WORD;
-    out1 AT %QW101 : WORD;
-    meter_ok AT %QX0.0 : BOOL;
-  END_VAR
-  VAR
-    scans : UDINT;
-  END_VAR
-  scans := scans + 1;
-END_PROGRAM
-
-CONFIGURATION Config0
-  RESOURCE Res0 ON PLC
-    TASK task0(INTERVAL := T#20ms,PRIORITY := 0);
-    PROGRAM instance0 WITH task0 : main;
-  END_RESOURCE
-END_CONFIGURATION
-"""
+USER = user_program()
 
 
 def reads(client):

@@ -43,41 +43,23 @@ from runtime_v4 import fail, plc_main, runtime_home, skip, translate, wait  # no
 from simctl import Simulator  # noqa: E402
 
 LINE = os.path.join(ROOT, "tests", "oplc_import")
+sys.path.insert(0, LINE)
+from line_plant import METER_WORDS, RELAY_INPUTS, user_program  # noqa: E402
 PLUGIN_JSON = os.path.join(LINE, "fixtures", "line_v4.json")
 CONVERTER = os.path.join(ROOT, "tools", "oplc_import", "oplc_import.py")
 PLUGINS = "core/src/drivers/plugins/python"
 PORT = 5502                     # the slave plugin's, on 127.0.0.1 in the daemon's namespace
-RELAY_INPUTS = [True, False, True, True, False, False, True, False]
-METER_WORDS = [2301, 52, 1196, 0, 65535, 7, 8, 9, 0, 0x4248, 0x3333, 0x3F73]
 SEEN_BITS, SEEN_WORDS = 1600, 200      # %QX200.0.., %QW200.. on the slave plugin
 IMAGE_BITS, IMAGE_WORDS = 800, 100     # %IX100.0.., %IW100.. (discrete inputs, input registers)
 COIL0, HR0 = 800, 100                  # %QX100.0, %QW100
 MBFB_E_TIMEOUT = 1                     # docs/errors.md: no reply after all retries
 
-USER = """PROGRAM main
-  VAR
-""" + "".join(f"    in{i} AT %IX100.{i} : BOOL;\n" for i in range(8)) \
-    + "".join(f"    w{i} AT %IW{100 + i} : WORD;\n" for i in range(12)) \
-    + "".join(f"    relay{i} AT %QX100.{i} : BOOL;\n" for i in range(4)) + """    out0 AT %QW100 : WORD;
-    out1 AT %QW101 : WORD;
-    meter_ok AT %QX0.0 : BOOL;
-    meter_err AT %QW0 : WORD;
-""" + "".join(f"    seen_in{i} AT %QX200.{i} : BOOL;\n" for i in range(8)) \
-    + "".join(f"    seen_w{i} AT %QW{200 + i} : WORD;\n" for i in range(12)) + """  END_VAR
-  VAR
-    scans : UDINT;
-  END_VAR
-  scans := scans + 1;
-""" + "".join(f"  seen_in{i} := in{i};\n" for i in range(8)) \
-    + "".join(f"  seen_w{i} := w{i};\n" for i in range(12)) + """END_PROGRAM
-
-CONFIGURATION Config0
-  RESOURCE Res0 ON PLC
-    TASK task0(INTERVAL := T#20ms,PRIORITY := 0);
-    PROGRAM instance0 WITH task0 : main;
-  END_RESOURCE
-END_CONFIGURATION
-"""
+USER = user_program(
+    decls="    meter_err AT %QW0 : WORD;\n"
+    + "".join(f"    seen_in{i} AT %QX200.{i} : BOOL;\n" for i in range(8))
+    + "".join(f"    seen_w{i} AT %QW{200 + i} : WORD;\n" for i in range(12)),
+    body="".join(f"  seen_in{i} := in{i};\n" for i in range(8))
+    + "".join(f"  seen_w{i} := w{i};\n" for i in range(12)))
 
 # pymodbus in the daemon's network namespace: one JSON request per line on stdin, one answer
 # per line on stdout ({"error": ...} while the slave plugin is not up yet).
