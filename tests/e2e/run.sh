@@ -18,5 +18,7 @@ case $(basename "$1") in
         skip "OpenPLC's webserver Python ($home/.venv, made by its install.sh) not found" ;;
 esac
 export OPENPLC_HOME=$home
+# OpenPLC's compile_program.sh through ccache, one source at a time (cc/g++ says how)
+export PATH="$here/cc:$PATH"
 exec "$here/../../tools/openplc/netns.sh" "${MBFB_PYTHON:?}" -m pytest -q -p no:cacheprovider --rootdir "$here" \
     --basetemp "$PWD/pytest-$(basename "$1" .py)" "$@"

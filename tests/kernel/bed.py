@@ -7,7 +7,7 @@ the simulator on the host end of each of its serial lines.
     run.rc, run.output (the program's stdout + stderr), run.trace (QEMU trace events),
     run.marks (host times of the program's marks), run.sims[i] (log, stats)
 
-The guest: Debian's kernel (tests/kernel/fetch_guest.sh, cached in the build tree), an
+The guest: Debian's kernel (tests/kernel/fetch_guest.sh, kept in the tool cache), an
 initramfs written here: busybox-static, the modules asked for (insmod, in order), the program
 with the shared libraries `ldd` names, and an init (guest_init.sh) that loads the modules, runs
 the setup lines, waits for the ports' device nodes, runs the program with its output kept in
@@ -206,13 +206,21 @@ def parse_trace(text: str) -> list:
     return events
 
 
+def tool_cache(build_dir: str, name: str) -> str:
+    """Where a download or build that does not change with the checkout is kept: NAME in
+    MBFB_TOOL_CACHE (default ~/.cache/mbfb, as STruC++'s build; v4/build-strucpp.sh), so that
+    a fresh clone finds it; in the build tree when MBFB_TOOL_CACHE is empty."""
+    base = os.environ.get("MBFB_TOOL_CACHE", os.path.join(
+        os.environ.get("XDG_CACHE_HOME", os.path.expanduser("~/.cache")), "mbfb"))
+    return os.path.join(base or os.path.abspath(build_dir), name)
+
+
 class Bed:
     def __init__(self, build_dir: str, arch: str = "amd64"):
         self.build = os.path.abspath(build_dir)
         self.guest = GUESTS[arch]
-        # the PC guest's cache keeps its name of before the ARM guests
-        self.cache = os.path.join(self.build, "kernel-guest" + ("" if arch == "amd64"
-                                                                  else f"-{arch}"))
+        # Debian's kernel and busybox for the guest, downloaded once (a few hundred MB)
+        self.cache = tool_cache(build_dir, f"kernel-guest-{arch}")
         self.busybox = BUSYBOX if arch == "amd64" else \
             os.path.join(self.cache, "root", "bin", "busybox")
 

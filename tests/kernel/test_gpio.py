@@ -20,7 +20,7 @@ import sys
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, HERE)
-from bed import Bed, Port, Skip, skip_or_fail  # noqa: E402
+from bed import Bed, Port, Skip, skip_or_fail, tool_cache  # noqa: E402
 
 SIMDIR = "/sys/kernel/config/gpio-sim/mbfb"
 LABEL = "mbfb-sim"     # the bus names the chip by its label (as on a Pi 5: pinctrl-rp1)
@@ -69,7 +69,7 @@ def main():
             if not os.path.isfile(lib):
                 raise Skip(f"{what} not found: '{lib}'")
         r = subprocess.run([os.path.join(HERE, "gpio_sim.sh"),
-                            os.path.join(build, "kernel-gpio-sim"), os.path.basename(moddir)],
+                            tool_cache(build, "kernel-gpio-sim"), os.path.basename(moddir)],
                            capture_output=True, text=True)
         if r.returncode != 0:
             raise Skip("no gpio-sim module for the guest: " +

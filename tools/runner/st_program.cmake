@@ -3,7 +3,8 @@
 # (tools/runner), MBFB_IEC2C, MBFB_IEC_LIB, MBFB_IEC_CINC, MBFB_PROGRAM_LANG, MBFB_PYTHON, the
 # host library targets and mbfb_set_rpath(<target> <flavour>).
 # mbfb_st_program(<target> <dir> [SHARED] [HOST <library>] [INCLUDE <header>] <st files...>):
-# the ST files (concatenated in order) compiled by iec2c in <dir>, glued (mkglue.py), compiled
+# the ST files (concatenated in order) compiled by iec2c in <dir> (its output kept by content:
+# scripts/gencache.py), glued (mkglue.py), compiled
 # as MBFB_PROGRAM_LANG with mbfb_st.h (the shims and the pragmas' macros; and <header>) force-included, and linked with the host
 # (default: the runner's) into <target>: an executable, or with SHARED a shared object (a
 # program a host dlopens, compiled with -fno-gnu-unique as Runtime v4's programs are, so that
@@ -25,7 +26,10 @@ function(mbfb_st_program target dir)
     OUTPUT ${dir}/Config0.c ${dir}/Res0.c ${dir}/glue.c
     COMMAND ${CMAKE_COMMAND} -E make_directory ${dir}
     COMMAND ${CMAKE_COMMAND} -DOUT=${dir}/program.st -DIN=${_in} -P ${_here}/concat.cmake
-    COMMAND ${MBFB_IEC2C} -f -l -p -r -R -a -I ${MBFB_IEC_LIB} program.st
+    COMMAND ${MBFB_PYTHON} ${_here}/../../scripts/gencache.py iec2c --in ${MBFB_IEC2C}
+            --in-dir ${MBFB_IEC_LIB} --in program.st --out Config0.c --out Config0.h
+            --out LOCATED_VARIABLES.h --out POUS.c --out POUS.h --out Res0.c --out VARIABLES.csv
+            -- ${MBFB_IEC2C} -f -l -p -r -R -a -I ${MBFB_IEC_LIB} program.st
     COMMAND ${MBFB_PYTHON} ${_here}/mkglue.py ${dir}
     WORKING_DIRECTORY ${dir}
     DEPENDS ${_st} ${_here}/concat.cmake ${_here}/mkglue.py
