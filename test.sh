@@ -63,7 +63,12 @@ if [ "$quick" = 1 ]; then
     cmake --build "$b" -j"$(nproc)" --target mbfb-ptyline ptyline_model_test $targets
     set -- -R "$quick_re" "$@"
 else
-    cmake --build "$b" -j"$(nproc)"
+    # with MBFB_FUZZ_SECONDS (.ci/run) the fuzz harnesses too: test fuzz_smoke runs them
+    fuzz=()
+    if [ -n "${MBFB_FUZZ_SECONDS:-}" ] && grep -qs 'build mbfb_fuzz:' "$b/build.ninja"; then
+        fuzz=(--target all mbfb_fuzz)
+    fi
+    cmake --build "$b" -j"$(nproc)" ${fuzz[@]+"${fuzz[@]}"}
 fi
 jobs=(-j "${MBFB_TEST_JOBS:-8}")
 for a in "$@"; do

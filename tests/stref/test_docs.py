@@ -190,6 +190,25 @@ def test_the_serial_tests_are_those_the_readme_names():
     assert not unnamed, f"RUN_SERIAL tests the README does not name: {unnamed}"
 
 
+def test_the_tests_run_last_follow_every_other():
+    """README.md, "Tests": `shims_late_*` run after every other test (tests/last.cmake) and
+    beside each other only: each DEPENDS on every test but those, and none runs alone."""
+    import fnmatch
+    tests = ctest_tests()
+    if tests is None:
+        import pytest
+        pytest.skip("no configured build tree (MBFB_BUILD_DIR or build/): the tests' "
+                    "properties come from ctest")
+    assert "`shims_late_*`" in read("README.md")
+    last = fnmatch.filter(tests, "shims_late_*")
+    assert last, "no shims_late_* test"
+    others = set(tests) - set(last)
+    for n in last:
+        deps = set(tests[n].get("DEPENDS") or [])
+        assert others <= deps, f"{n} may start before {sorted(others - deps)[:5]}"
+        assert not tests[n].get("RUN_SERIAL"), f"{n} runs alone: the others would wait for it"
+
+
 def test_shim_calls_per_scan_quoted_alike():
     """The shim calls per scan are bench/README.md's table; README.md and st_src/README.md
     quote its most and its steady figure, the same in both."""
