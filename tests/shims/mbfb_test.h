@@ -199,11 +199,12 @@ typedef struct t_case {
 } t_case_t;
 /** Run every case for RTU, ASCII and RTU-without-CRC in turn (setting *framing and
  *  t_scenario first), printing each one's time; returns t_done(test).
- *  MBFB_TEST_ROTATE=k (set by tests/shims/CMakeLists.txt for the sanitizer flavours): each
- *  case runs in one framing only, case c in framing (c + k) mod 3, so every case and every
- *  framing still run under the sanitizer without repeating the long waits that the plain
- *  flavours run in full. MBFB_TEST_CASE=text (by hand, to repeat one case): only the cases
- *  whose "framing: name" contains text. A case that fails while a thread of the test was
+ *  MBFB_TEST_ROTATE=k (set by tests/shims/CMakeLists.txt for every flavour but Debian's
+ *  libmodbus): each case runs in one framing only, case c in framing (c + k) mod 3, so every
+ *  case and every framing still run in that flavour without repeating the long waits that
+ *  the default flavour runs in full. MBFB_TEST_CASE=text (by hand, to repeat one case; and
+ *  "rtu:", "ascii:", "rtu-nocrc:" for one framing, tests/last.cmake): only the cases whose
+ *  "framing: name" contains text. A case that fails while a thread of the test was
  *  more than MBFB_TEST_LATENCY_MS (default 20) late (t_note_late) runs again, its checks
  *  taken back, at most 3 runs in all (mbfb_test_peer.c: the machine's latency during a scenario). */
 int t_serial_scenarios(const char *test, int *framing, const t_case_t *cases, int n);

@@ -191,17 +191,18 @@ def test_the_serial_tests_are_those_the_readme_names():
 
 
 def test_the_tests_run_last_follow_every_other():
-    """README.md, "Tests": `shims_late_*` run after every other test (tests/last.cmake) and
-    beside each other only: each DEPENDS on every test but those, and none runs alone."""
+    """README.md, "Tests": `shims_late_*` and `soak_smoke` run after every other test
+    (tests/last.cmake) and beside each other only: each DEPENDS on every test but those, and
+    none runs alone."""
     import fnmatch
     tests = ctest_tests()
     if tests is None:
         import pytest
         pytest.skip("no configured build tree (MBFB_BUILD_DIR or build/): the tests' "
                     "properties come from ctest")
-    assert "`shims_late_*`" in read("README.md")
-    last = fnmatch.filter(tests, "shims_late_*")
-    assert last, "no shims_late_* test"
+    assert "`shims_late_*`" in read("README.md") and "`soak_smoke` run last" in words(read("README.md"))
+    last = fnmatch.filter(tests, "shims_late_*") + fnmatch.filter(tests, "soak_smoke")
+    assert len(last) > 1, "no shims_late_* or soak_smoke test"
     others = set(tests) - set(last)
     for n in last:
         deps = set(tests[n].get("DEPENDS") or [])
