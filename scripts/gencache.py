@@ -45,11 +45,17 @@ def parse(argv):
     return name, spec, cmd
 
 
+def tool_cache():
+    """The tool cache: MBFB_TOOL_CACHE, default ~/.cache/mbfb (as v4/build-strucpp.sh and
+    scripts/venv.sh read it); '' when set empty (no cache)."""
+    return os.environ.get("MBFB_TOOL_CACHE", os.path.join(
+        os.environ.get("XDG_CACHE_HOME", os.path.expanduser("~/.cache")), "mbfb"))
+
+
 def cache_root(name):
     if os.environ.get("MBFB_GENCACHE", "1") == "0":
         return None
-    base = os.environ.get("MBFB_TOOL_CACHE", os.path.join(
-        os.environ.get("XDG_CACHE_HOME", os.path.expanduser("~/.cache")), "mbfb"))
+    base = tool_cache()
     return os.path.join(base, f"gen-{name}") if base else None
 
 

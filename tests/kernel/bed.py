@@ -48,6 +48,8 @@ import time
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(os.path.dirname(HERE))
+sys.path.insert(0, os.path.join(ROOT, "scripts"))
+import gencache  # noqa: E402  (the tool cache's place)
 SIM = os.path.join(ROOT, "tools", "sim", "mbsim.py")
 QEMU = os.environ.get("MBFB_QEMU", "qemu-system-x86_64")
 BUSYBOX = os.environ.get("MBFB_BUSYBOX", "/bin/busybox")
@@ -207,12 +209,10 @@ def parse_trace(text: str) -> list:
 
 
 def tool_cache(build_dir: str, name: str) -> str:
-    """Where a download or build that does not change with the checkout is kept: NAME in
-    MBFB_TOOL_CACHE (default ~/.cache/mbfb, as STruC++'s build; v4/build-strucpp.sh), so that
-    a fresh clone finds it; in the build tree when MBFB_TOOL_CACHE is empty."""
-    base = os.environ.get("MBFB_TOOL_CACHE", os.path.join(
-        os.environ.get("XDG_CACHE_HOME", os.path.expanduser("~/.cache")), "mbfb"))
-    return os.path.join(base or os.path.abspath(build_dir), name)
+    """Where a download or build that does not change with the checkout is kept: NAME in the
+    tool cache (MBFB_TOOL_CACHE, scripts/gencache.py), so that a fresh clone finds it; in the
+    build tree when MBFB_TOOL_CACHE is empty."""
+    return os.path.join(gencache.tool_cache() or os.path.abspath(build_dir), name)
 
 
 class Bed:
