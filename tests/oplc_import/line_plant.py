@@ -3,6 +3,15 @@ strucpp_v4_import in Runtime v4): a relay module (slave 2, line_relays.json) and
 (slave 5, line_meter.json) on one RTU line, and the user program that uses their located
 addresses (%IX100.0.., %IW100.., %QX100.0.., %QW100..)."""
 
+# the CONFIGURATION the OpenPLC Editor writes for a PROGRAM main
+CONFIGURATION = """CONFIGURATION Config0
+  RESOURCE Res0 ON PLC
+    TASK task0(INTERVAL := T#20ms,PRIORITY := 0);
+    PROGRAM instance0 WITH task0 : main;
+  END_RESOURCE
+END_CONFIGURATION
+"""
+
 RELAY_INPUTS = [True, False, True, True, False, False, True, False]
 METER_WORDS = [2301, 52, 1196, 0, 65535, 7, 8, 9, 0, 0x4248, 0x3333, 0x3F73]
 
@@ -24,10 +33,4 @@ def user_program(decls="", body=""):
   scans := scans + 1;
 """ + body + """END_PROGRAM
 
-CONFIGURATION Config0
-  RESOURCE Res0 ON PLC
-    TASK task0(INTERVAL := T#20ms,PRIORITY := 0);
-    PROGRAM instance0 WITH task0 : main;
-  END_RESOURCE
-END_CONFIGURATION
-"""
+""" + CONFIGURATION

@@ -18,6 +18,7 @@ FIX = os.path.join(HERE, "fixtures")
 sys.path[:0] = [TOOL, HERE]
 import readers  # noqa: E402
 import gen  # noqa: E402
+import line_plant  # noqa: E402
 
 REQUIRE = os.environ.get("MBFB_REQUIRE_TOOLCHAIN") == "1"
 
@@ -236,13 +237,7 @@ PROGRAM main
   speed := 1500;
 END_PROGRAM
 
-CONFIGURATION Config0
-  RESOURCE Res0 ON PLC
-    TASK task0(INTERVAL := T#20ms,PRIORITY := 0);
-    PROGRAM instance0 WITH task0 : main;
-  END_RESOURCE
-END_CONFIGURATION
-"""
+""" + line_plant.CONFIGURATION
 
 
 def test_into_the_users_program(tmp_path):
