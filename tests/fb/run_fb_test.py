@@ -26,6 +26,8 @@ import tempfile
 
 HERE = os.path.dirname(os.path.abspath(__file__))
 sys.path.insert(0, os.path.join(os.path.dirname(os.path.dirname(HERE)), "tools", "sim"))
+sys.path.insert(0, os.path.dirname(HERE))
+import timed  # noqa: E402  (tests/timed.py)
 
 SKIP = 77
 
@@ -76,6 +78,8 @@ def main() -> int:
     args = ap.parse_args()
     if args.skip is not None:
         return skip(args.skip)
+    # the program's worker and the simulated devices hold reply timeouts: before other load
+    timed.raise_priority(os.path.basename(args.st or args.exe or "fb test"))
     from simctl import Simulator  # tools/sim/simctl.py
 
     spec = sim_spec(args.st)

@@ -50,6 +50,8 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 ROOT = os.path.dirname(os.path.dirname(HERE))
 sys.path.insert(0, os.path.join(ROOT, "scripts"))
 import gencache  # noqa: E402  (the tool cache's place)
+sys.path.insert(0, os.path.dirname(HERE))
+import timed  # noqa: E402  (tests/timed.py: the guests and simulators before other load)
 SIM = os.path.join(ROOT, "tools", "sim", "mbsim.py")
 QEMU = os.environ.get("MBFB_QEMU", "qemu-system-x86_64")
 BUSYBOX = os.environ.get("MBFB_BUSYBOX", "/bin/busybox")
@@ -223,6 +225,8 @@ class Bed:
         self.cache = tool_cache(build_dir, f"kernel-guest-{arch}")
         self.busybox = BUSYBOX if arch == "amd64" else \
             os.path.join(self.cache, "root", "bin", "busybox")
+        # the guest's timers and the simulators stand for hardware: precedence over other load
+        timed.raise_priority(f"kernel bed ({arch})")
 
     # ---- what the guest is made of ----
     def kernel(self):
