@@ -208,6 +208,9 @@ typedef struct t_case {
  *  more than MBFB_TEST_LATENCY_MS (default 20) late (t_note_late) runs again, its checks
  *  taken back, at most 3 runs in all (mbfb_test_peer.c: the machine's latency during a scenario). */
 int t_serial_scenarios(const char *test, int *framing, const t_case_t *cases, int n);
+/** The same for cases that are not run per framing (each sets t_scenario itself): every
+ *  case once, with the latency rerun; returns t_done(test). */
+int t_scenarios(const char *test, const t_case_t *cases, int n);
 void t_sleep_ms(int ms);
 /** A child process the test started: SIGTERM, then reaped (nothing when pid <= 0). */
 void t_stop_child(pid_t pid);

@@ -869,7 +869,8 @@ static int run_case(const t_case_t *c, int run)
     return 1;
 }
 
-int t_serial_scenarios(const char *test, int *framing, const t_case_t *cases, int n)
+/* Start the latency monitor (once per process); 0, or 1 when no thread could be made. */
+static int lat_start(const char *test)
 {
     static int lat_started;
     pthread_t lat_thread;
@@ -881,6 +882,33 @@ int t_serial_scenarios(const char *test, int *framing, const t_case_t *cases, in
         pthread_detach(lat_thread);
         lat_started = 1;
     }
+    return 0;
+}
+
+/* Run a case under `name` until a run counts (run_case), and print its time. */
+static void run_named(const t_case_t *c, const char *name)
+{
+    int64_t t0 = t_now_us();
+    t_scenario = name;
+    for (int run = 0; run_case(c, run); run++) {
+    }
+    printf("  %-60s %6.1f s\n", name, (double)(t_now_us() - t0) / 1e6);
+    fflush(stdout);
+}
+
+int t_scenarios(const char *test, const t_case_t *cases, int n)
+{
+    if (lat_start(test))
+        return 1;
+    for (int c = 0; c < n; c++)
+        run_named(&cases[c], cases[c].name);
+    return t_done(test);
+}
+
+int t_serial_scenarios(const char *test, int *framing, const t_case_t *cases, int n)
+{
+    if (lat_start(test))
+        return 1;
     static const struct { int framing; const char *name; } framings[] = {
         {MBFB_FRAMING_RTU, "rtu"},
         {MBFB_FRAMING_ASCII, "ascii"},
@@ -909,12 +937,7 @@ int t_serial_scenarios(const char *test, int *framing, const t_case_t *cases, in
             snprintf(name, sizeof name, "%s: %s", framings[f].name, cases[c].name);
             if (only != NULL && only[0] != '\0' && strstr(name, only) == NULL)
                 continue;
-            int64_t t0 = t_now_us();
-            t_scenario = name;
-            for (int run = 0; run_case(&cases[c], run); run++) {
-            }
-            printf("  %-60s %6.1f s\n", name, (double)(t_now_us() - t0) / 1e6);
-            fflush(stdout);
+            run_named(&cases[c], name);
         }
     }
     return t_done(test);

@@ -607,17 +607,20 @@ static void port_identity(void)
 
 int main(void)
 {
-    port_identity();
-    manual_rtu();
-    manual_ascii();
-    manual_nocrc();
-    broadcast();
-    bad_args();
-    queue_cancel_handles();
-    conflicts();
-    no_port();
-    worker_priority();
-    port_lost();
-    dead_device();
-    return t_done("test_bus");
+    /* each with the latency rerun (t_scenarios): its peer's timings hold only on time */
+    static const t_case_t cases[] = {
+        {port_identity, "port_identity"},
+        {manual_rtu, "manual_rtu"},
+        {manual_ascii, "manual_ascii"},
+        {manual_nocrc, "manual_nocrc"},
+        {broadcast, "broadcast"},
+        {bad_args, "bad_args"},
+        {queue_cancel_handles, "queue_cancel_handles"},
+        {conflicts, "conflicts"},
+        {no_port, "no_port"},
+        {worker_priority, "worker_priority"},
+        {port_lost, "port_lost"},
+        {dead_device, "dead_device"},
+    };
+    return t_scenarios("test_bus", cases, (int)(sizeof cases / sizeof cases[0]));
 }

@@ -634,15 +634,18 @@ static void handover(void)
 
 int main(void)
 {
-    no_port();
-    handover();
-    snapshot();
-    tiers();
-    slow_owed();
-    stop();
-    fairness();
-    writes_first();
-    refresh_diag();
-    late_heard();
-    return t_done("test_plans");
+    /* each with the latency rerun (t_scenarios): its peer's timings hold only on time */
+    static const t_case_t cases[] = {
+        {no_port, "no_port"},
+        {handover, "handover"},
+        {snapshot, "snapshot"},
+        {tiers, "tiers"},
+        {slow_owed, "slow_owed"},
+        {stop, "stop"},
+        {fairness, "fairness"},
+        {writes_first, "writes_first"},
+        {refresh_diag, "refresh_diag"},
+        {late_heard, "late_heard"},
+    };
+    return t_scenarios("test_plans", cases, (int)(sizeof cases / sizeof cases[0]));
 }
