@@ -24,6 +24,11 @@
  * fires 400..533 ms after it was handed to the line, depending on flavour/framing. */
 #define T_MS 400
 #define BAUD 600
+/* One character's time at BAUD (8N1): a babbling device cannot talk faster than this. A
+ * babbler at 1 byte/ms (18 times the line's pace) made the kernel's pty worker, shared by
+ * every pty of the machine, hold other tests' bytes for seconds when three ran beside two
+ * busy loops (a probe pty: 10 s) */
+#define CHAR_US (10 * 1000000 / BAUD)
 
 #define NREG 10   /* registers per read: replies of 25 (RTU) / 51 (ASCII) bytes */
 
@@ -413,8 +418,8 @@ static void babble_short(void)
     teardown();
 }
 
-/* The line never falls silent (0xFF every millisecond) and the device is dead: each
- * attempt waits at most silence + 3 timeouts, goes out anyway, and fails on garbage;
+/* The line never falls silent (0xFF back to back, one every CHAR_US) and the device is
+ * dead: each attempt waits at most silence + 3 timeouts, goes out anyway, and fails on garbage;
  * the request ends while the line still babbles. Then the line calms down and the
  * device answers again. */
 static void babble_forever(void)
@@ -427,7 +432,7 @@ static void babble_forever(void)
     dev = setup(peer_answer, 1);
     CHECK_EQ(t_run(dev, 3, 0, 1, NULL, v, 1), 1);
     peer_set_dead(&P, 1, 1);
-    CHECK_EQ(peer_babble_start(&P, &ff, 1, 1000, 0), 0);
+    CHECK_EQ(peer_babble_start(&P, &ff, 1, CHAR_US, 0), 0);
     h = post_when(dev, 2, 1, babble_started);
     v[0] = 0;
     rc = take(h, v);
