@@ -9,6 +9,7 @@ edges against the frame's bits in QEMU's trace.
 Exit 0 when every check holds, 1 on a failed check, 77 (skipped) without QEMU or the kernel.
 """
 import os
+import statistics
 import sys
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
@@ -105,8 +106,8 @@ def check_rts_timing(port, lead, late, before, after, ch):
           f"frame's last bit (one character {ch:.0f} us + DirAfterUs {after})")
     check(min(lead) >= before, f"{port} RTS asserted at least DirBeforeUs before the first byte")
     check(min(late) >= 0, f"{port} RTS never released before the frame's last bit")
-    median = sorted(late)[len(late) // 2]
-    oversleep = max(0.0, sorted(lead)[len(lead) // 2] - before)
+    median = statistics.median_high(late)
+    oversleep = max(0.0, statistics.median_high(lead) - before)
     slack = max(TCG_SLACK_US, 2 * oversleep)
     check(median <= ch + after + slack,
           f"{port} RTS released within one character + DirAfterUs of the last bit, median "

@@ -197,6 +197,8 @@ typedef struct t_case {
     void (*fn)(void);
     const char *name;
 } t_case_t;
+/** A case named by its function (the function sets t_scenario to its own words). */
+#define T_CASE(fn) {fn, #fn}
 /** Run every case for RTU, ASCII and RTU-without-CRC in turn (setting *framing and
  *  t_scenario first), printing each one's time; returns t_done(test).
  *  MBFB_TEST_ROTATE=k (set by tests/shims/CMakeLists.txt for every flavour but Debian's

@@ -34,7 +34,7 @@ static int64_t case_t0;      /* when the scenario began (t_serial_scenarios)    
 static int case_no, dumped_case = -1;
 
 static int64_t lat_max_us;   /* __atomic: the latest a thread of the test was since the
-                                scenario began (t_note_late; t_serial_scenarios)      */
+                                scenario began (t_note_late; run_case)                */
 
 /* ---- the tests' priority ------------------------------------------------------------
  * The scenarios hold replies against reply timeouts of 100 ms and more, and the peer
@@ -383,17 +383,26 @@ static void *peer_main(void *arg)
     return NULL;
 }
 
-int peer_start(peer_t *p, const char *link, int mode, peer_fn fn, void *user)
+/* A pty, raw on the slave side as the shims set a port: no echo, no CR/LF mapping.
+ * name: the slave's path (64 bytes), or NULL. 0, or -1. */
+static int raw_pty(int *master, int *slave, char *name)
 {
     struct termios tio;
+    if (openpty(master, slave, name, NULL, NULL) != 0)
+        return -1;
+    if (tcgetattr(*slave, &tio) == 0) {
+        cfmakeraw(&tio);
+        (void)tcsetattr(*slave, TCSANOW, &tio);
+    }
+    return 0;
+}
+
+int peer_start(peer_t *p, const char *link, int mode, peer_fn fn, void *user)
+{
     char name[64], tmp[160];
     memset(p, 0, sizeof *p);
-    if (openpty(&p->master, &p->slave_keep, name, NULL, NULL) != 0)
+    if (raw_pty(&p->master, &p->slave_keep, name) != 0)
         return -1;
-    /* raw on the slave side, as the shims will set it: no echo, no CR/LF mapping */
-    tcgetattr(p->slave_keep, &tio);
-    cfmakeraw(&tio);
-    tcsetattr(p->slave_keep, TCSANOW, &tio);
     snprintf(p->link, sizeof p->link, "%s", link);
     snprintf(tmp, sizeof tmp, "%s.new", link);
     unlink(tmp);
@@ -808,8 +817,9 @@ int t_read_reply_bytes(int framing, int nregs)
  * of its own every LAT_PROBE_TICKS ticks, noting how long the kernel took to deliver it
  * (a pty's bytes go through kernel worker threads at ordinary priority, shared by every
  * pty: beside two busy loops and seven of these tests at once a probe's byte took up to
- * 30 s while its own sleeps overslept at most 6 ms); the peer notes how much later than its script each reply was out, a
- * paced one included (many short sleeps, each a little late, add up). A scenario that
+ * 30 s while its own sleeps overslept at most 6 ms); the peer notes how much later than its
+ * script each reply was out, a paced one included (many short sleeps, each a little late,
+ * add up). A scenario that
  * failed while one of them was later than MBFB_TEST_LATENCY_MS (default LAT_LIMIT_MS) ran
  * on a machine that did not give it the time its premises need: its checks are taken back
  * and it runs again, at most LAT_RUNS times in all; the last run counts whatever the
@@ -823,13 +833,9 @@ static void *lat_main(void *arg)
     int m = -1, s = -1;
     int64_t sent = 0; /* when the probe byte now on its way was written; 0: none */
     unsigned ticks = 0;
-    struct termios raw;
     (void)arg;
-    if (openpty(&m, &s, NULL, NULL, NULL) == 0 && tcgetattr(s, &raw) == 0) {
-        cfmakeraw(&raw);
-        (void)tcsetattr(s, TCSANOW, &raw);
+    if (raw_pty(&m, &s, NULL) == 0)
         (void)fcntl(s, F_SETFL, O_NONBLOCK);
-    }
     for (;;) {
         int64_t t0 = t_now_us();
         uint8_t b;
@@ -863,8 +869,8 @@ static int run_case(const t_case_t *c, int run)
         return 0;
     fprintf(stderr, "  [%s] run %d of %d: the checks above are taken back: a thread of this "
             "test or the kernel's pty delivery was up to %.1f ms late during it (the "
-            "scenarios' timings allow %ld ms: MBFB_TEST_LATENCY_MS); run again\n", t_scenario, run + 1, LAT_RUNS,
-            (double)late / 1e3, limit_ms);
+            "scenarios' timings allow %ld ms: MBFB_TEST_LATENCY_MS); run again\n", t_scenario,
+            run + 1, LAT_RUNS, (double)late / 1e3, limit_ms);
     t_failures = failures;
     return 1;
 }

@@ -609,18 +609,18 @@ int main(void)
 {
     /* each with the latency rerun (t_scenarios): its peer's timings hold only on time */
     static const t_case_t cases[] = {
-        {port_identity, "port_identity"},
-        {manual_rtu, "manual_rtu"},
-        {manual_ascii, "manual_ascii"},
-        {manual_nocrc, "manual_nocrc"},
-        {broadcast, "broadcast"},
-        {bad_args, "bad_args"},
-        {queue_cancel_handles, "queue_cancel_handles"},
-        {conflicts, "conflicts"},
-        {no_port, "no_port"},
-        {worker_priority, "worker_priority"},
-        {port_lost, "port_lost"},
-        {dead_device, "dead_device"},
+        T_CASE(port_identity),
+        T_CASE(manual_rtu),
+        T_CASE(manual_ascii),
+        T_CASE(manual_nocrc),
+        T_CASE(broadcast),
+        T_CASE(bad_args),
+        T_CASE(queue_cancel_handles),
+        T_CASE(conflicts),
+        T_CASE(no_port),
+        T_CASE(worker_priority),
+        T_CASE(port_lost),
+        T_CASE(dead_device),
     };
     return t_scenarios("test_bus", cases, (int)(sizeof cases / sizeof cases[0]));
 }

@@ -419,8 +419,8 @@ static void babble_short(void)
 }
 
 /* The line never falls silent (0xFF back to back, one every CHAR_US) and the device is
- * dead: each attempt waits at most silence + 3 timeouts, goes out anyway, and fails on garbage;
- * the request ends while the line still babbles. Then the line calms down and the
+ * dead: each attempt waits at most silence + 3 timeouts, goes out anyway, and fails on
+ * garbage; the request ends while the line still babbles. Then the line calms down and the
  * device answers again. */
 static void babble_forever(void)
 {

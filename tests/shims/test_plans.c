@@ -636,16 +636,16 @@ int main(void)
 {
     /* each with the latency rerun (t_scenarios): its peer's timings hold only on time */
     static const t_case_t cases[] = {
-        {no_port, "no_port"},
-        {handover, "handover"},
-        {snapshot, "snapshot"},
-        {tiers, "tiers"},
-        {slow_owed, "slow_owed"},
-        {stop, "stop"},
-        {fairness, "fairness"},
-        {writes_first, "writes_first"},
-        {refresh_diag, "refresh_diag"},
-        {late_heard, "late_heard"},
+        T_CASE(no_port),
+        T_CASE(handover),
+        T_CASE(snapshot),
+        T_CASE(tiers),
+        T_CASE(slow_owed),
+        T_CASE(stop),
+        T_CASE(fairness),
+        T_CASE(writes_first),
+        T_CASE(refresh_diag),
+        T_CASE(late_heard),
     };
     return t_scenarios("test_plans", cases, (int)(sizeof cases / sizeof cases[0]));
 }

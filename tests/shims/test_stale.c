@@ -194,9 +194,9 @@ int main(void)
 {
     /* each with the latency rerun (t_scenarios): its peer's timings hold only on time */
     static const t_case_t cases[] = {
-        {plans_stop_and_resume, "plans_stop_and_resume"},
-        {slow_task, "slow_task"},
-        {queued_not_sent_later, "queued_not_sent_later"},
+        T_CASE(plans_stop_and_resume),
+        T_CASE(slow_task),
+        T_CASE(queued_not_sent_later),
     };
     return t_scenarios("stale", cases, (int)(sizeof cases / sizeof cases[0]));
 }
