@@ -1,7 +1,8 @@
 /*
- * mbfb_test.h - assertion helpers and a scripted Modbus peer on a pty, for the
- * c_shims tests. The peer is written independently of c_shims (its own CRC, LRC and
- * framing), so the shims are checked against bytes, not against themselves.
+ * mbfb_test.h - assertion helpers and a scripted Modbus peer on a serial line inside the
+ * test program (testline.h), for the c_shims tests. The peer is written independently of
+ * c_shims (its own CRC, LRC and framing), so the shims are checked against bytes, not
+ * against themselves.
  */
 #ifndef MBFB_TEST_H
 #define MBFB_TEST_H
@@ -85,9 +86,9 @@ typedef void (*peer_fn)(struct peer *p, int n, const uint8_t *frame, int flen,
                         peer_reply_t *r);
 
 typedef struct peer {
-    int master, slave_keep;
+    int line;                 /* the peer's end of the line (testline.h)          */
     int mode;                 /* PEER_RTU / PEER_ASCII                            */
-    char link[128];           /* symlink the shims open                           */
+    char link[128];           /* the port's name, which the shims open            */
     peer_fn fn;
     void *user;
     int stop;                 /* __atomic */
@@ -123,9 +124,9 @@ typedef struct peer {
     long babbled;                              /* __atomic: bytes written          */
 } peer_t;
 
-/** Start a peer on a new pty; `link` becomes a symlink to it (replaced if present). */
+/** Start a peer on a new line (testline.h) named `link` (replaced if present). */
 int peer_start(peer_t *p, const char *link, int mode, peer_fn fn, void *user);
-/** Stop the thread, remove the link and close the pty (the shims' port is gone). */
+/** Stop the thread and drop the line: its name disappears (the shims' port is gone). */
 void peer_stop(peer_t *p);
 int peer_count(peer_t *p);
 /** The peer's count of requests once it has read `n` of them, at most 2 s: its thread may
@@ -225,7 +226,7 @@ void t_pymodbus_conversation(int dev);
 /** pymodbus_peer.py's bits at PDU address a (its blocks are 1-based: index a + 1). */
 #define T_PM_COIL(a) (((a) + 1) % 3 == 0)
 #define T_PM_INPUT(a) (((a) + 1) % 5 < 2)
-/** A fresh temporary directory for pty links; returns path (static). */
+/** A fresh temporary directory for the lines' names; returns path (static). */
 const char *t_tmpdir(void);
 
 #endif

@@ -1,12 +1,12 @@
 /*
- * mbfb_test_peer.c - assertion helpers and the scripted pty peer (see mbfb_test.h).
+ * mbfb_test_peer.c - assertion helpers and the scripted peer (see mbfb_test.h) on its line
+ * (testline.c).
  */
 #define _GNU_SOURCE
 #include <dirent.h>
 #include <errno.h>
 #include <fcntl.h>
 #include <poll.h>
-#include <pty.h>
 #include <signal.h>
 #include <stdlib.h>
 #include <string.h>
@@ -19,6 +19,7 @@
 #include <unistd.h>
 
 #include "mbfb_test.h"
+#include "testline.h"
 
 /* 3.10 FDC Example 1: FC16 download of 52 words (113 bytes, CRC 0xC38E sent 8E C3). */
 const char *const fdc_ex1 =
@@ -167,7 +168,7 @@ void t_stop_child(pid_t pid)
 #define TMPDIR_MAX 64
 static char tmp_dir[TMPDIR_MAX + 32];
 
-/* At exit: remove what the tests put in the temporary directory (pty links), then it. */
+/* At exit: remove what the tests put in the temporary directory (lines' names), then it. */
 static void remove_tmpdir(void)
 {
     DIR *d = opendir(tmp_dir);
@@ -231,10 +232,10 @@ uint8_t peer_lrc(const uint8_t *buf, int len)
 /* ---- the peer --------------------------------------------------------------- */
 static int read_byte(peer_t *p, uint8_t *b, int wait_ms)
 {
-    struct pollfd pf = {p->master, POLLIN, 0};
+    struct pollfd pf = {p->line, POLLIN, 0};
     if (poll(&pf, 1, wait_ms) <= 0)
         return 0;
-    return read(p->master, b, 1) == 1;
+    return read(p->line, b, 1) == 1;
 }
 
 /* Read one request: RTU by its length rules, ASCII up to LF. Returns its length,
@@ -287,7 +288,7 @@ static int decode(peer_t *p, const uint8_t *raw, int len, uint8_t *frame)
 
 static void write_all(peer_t *p, const uint8_t *buf, int len)
 {
-    if (len > 0 && write(p->master, buf, (size_t)len) != len)
+    if (len > 0 && write(p->line, buf, (size_t)len) != len)
         fprintf(stderr, "peer: short write\n");
 }
 
@@ -296,9 +297,9 @@ static void discard_input(peer_t *p)
 {
     for (;;) {
         uint8_t junk[64];
-        struct pollfd pf = {p->master, POLLIN, 0};
+        struct pollfd pf = {p->line, POLLIN, 0};
         ssize_t k;
-        if (poll(&pf, 1, 0) <= 0 || (k = read(p->master, junk, sizeof junk)) <= 0)
+        if (poll(&pf, 1, 0) <= 0 || (k = read(p->line, junk, sizeof junk)) <= 0)
             return;
         __atomic_fetch_add(&p->ignored, (long)k, __ATOMIC_RELAXED);
     }
@@ -320,7 +321,7 @@ static void peer_write(peer_t *p, const peer_reply_t *r)
         return;
     }
     for (int i = 0; i < r->len; i++) {
-        struct pollfd pf = {p->master, POLLIN, 0};
+        struct pollfd pf = {p->line, POLLIN, 0};
         if (r->deaf)
             discard_input(p);
         else if (i > 0 && poll(&pf, 1, 0) > 0)
@@ -364,7 +365,7 @@ static void *peer_main(void *arg)
             t_sleep_ms(1);
         for (int i = 0; r.until_input && i < 500 && !__atomic_load_n(&p->stop, __ATOMIC_ACQUIRE);
              i++) { /* woken by the input itself: no polling delay a loaded machine stretches */
-            struct pollfd pf = {p->master, POLLIN, 0};
+            struct pollfd pf = {p->line, POLLIN, 0};
             if (poll(&pf, 1, 20) > 0)
                 break;
         }
@@ -383,30 +384,11 @@ static void *peer_main(void *arg)
     return NULL;
 }
 
-/* A pty, raw on the slave side as the shims set a port: no echo, no CR/LF mapping.
- * name: the slave's path (64 bytes), or NULL. 0, or -1. */
-static int raw_pty(int *master, int *slave, char *name)
-{
-    struct termios tio;
-    if (openpty(master, slave, name, NULL, NULL) != 0)
-        return -1;
-    if (tcgetattr(*slave, &tio) == 0) {
-        cfmakeraw(&tio);
-        (void)tcsetattr(*slave, TCSANOW, &tio);
-    }
-    return 0;
-}
-
 int peer_start(peer_t *p, const char *link, int mode, peer_fn fn, void *user)
 {
-    char name[64], tmp[160];
     memset(p, 0, sizeof *p);
-    if (raw_pty(&p->master, &p->slave_keep, name) != 0)
-        return -1;
     snprintf(p->link, sizeof p->link, "%s", link);
-    snprintf(tmp, sizeof tmp, "%s.new", link);
-    unlink(tmp);
-    if (symlink(name, tmp) != 0 || rename(tmp, link) != 0)
+    if (tl_make(link, &p->line) != 0)
         return -1;
     p->mode = mode;
     p->fn = fn;
@@ -474,7 +456,7 @@ int peer_reply_sent(peer_t *p)
 int peer_pending(peer_t *p)
 {
     int n = 0;
-    return ioctl(p->master, FIONREAD, &n) == 0 ? n : -1;
+    return ioctl(p->line, FIONREAD, &n) == 0 ? n : -1;
 }
 
 void peer_release(peer_t *p)
@@ -488,12 +470,8 @@ void peer_stop(peer_t *p)
     peer_babble_stop(p);
     __atomic_store_n(&p->stop, 1, __ATOMIC_RELEASE);
     pthread_join(p->th, NULL);
-    /* the port disappears, as a pulled USB adapter's device node does; a dangling link
-     * would name the next pty that reuses this number (another test's) */
-    unlink(p->link);
-    close(p->master);
-    close(p->slave_keep);
-    p->master = p->slave_keep = -1;
+    tl_drop(p->link, p->line); /* the port disappears, as a pulled USB adapter's node does */
+    p->line = -1;
 }
 
 /* One of the peer's counters (an int, or else a long), read under its lock. */
@@ -811,45 +789,24 @@ int t_read_reply_bytes(int framing, int nregs)
 
 /* ---- the machine's latency during a scenario -------------------------------------
  * The scenarios' timings (reply timeouts of 100 ms and more, late replies, pauses) hold only
- * while the process's threads run when they wake and the kernel passes a pty's bytes on
- * when they are written. A monitor thread sleeps LAT_TICK_US at a time and notes how much
- * it overslept (as cyclictest measures scheduling latency), and writes a byte into a pty
- * of its own every LAT_PROBE_TICKS ticks, noting how long the kernel took to deliver it
- * (a pty's bytes go through kernel worker threads at ordinary priority, shared by every
- * pty: beside two busy loops and seven of these tests at once a probe's byte took up to
- * 30 s while its own sleeps overslept at most 6 ms); the peer notes how much later than its
+ * while the process's threads run when they wake (the line's bytes are the process's own:
+ * testline.c). A monitor thread sleeps LAT_TICK_US at a time and notes how much it overslept
+ * (as cyclictest measures scheduling latency); the peer notes how much later than its
  * script each reply was out, a paced one included (many short sleeps, each a little late,
- * add up). A scenario that
- * failed while one of them was later than MBFB_TEST_LATENCY_MS (default LAT_LIMIT_MS) ran
- * on a machine that did not give it the time its premises need: its checks are taken back
- * and it runs again, at most LAT_RUNS times in all; the last run counts whatever the
- * latency. A failure with the latency within the limit counts at once. */
+ * add up). A scenario that failed while one of them was later than MBFB_TEST_LATENCY_MS
+ * (default LAT_LIMIT_MS) ran on a machine that did not give it the time its premises need:
+ * its checks are taken back and it runs again, at most LAT_RUNS times in all; the last run
+ * counts whatever the latency. A failure with the latency within the limit counts at once. */
 #define LAT_TICK_US 2000
-#define LAT_PROBE_TICKS 10 /* a probe byte every 20 ms: the pty worker is every test's */
 #define LAT_LIMIT_MS 20
 #define LAT_RUNS 3
 static void *lat_main(void *arg)
 {
-    int m = -1, s = -1;
-    int64_t sent = 0; /* when the probe byte now on its way was written; 0: none */
-    unsigned ticks = 0;
     (void)arg;
-    if (raw_pty(&m, &s, NULL) == 0)
-        (void)fcntl(s, F_SETFL, O_NONBLOCK);
     for (;;) {
         int64_t t0 = t_now_us();
-        uint8_t b;
-        if (m >= 0 && sent == 0 && ++ticks % LAT_PROBE_TICKS == 0 && write(m, "x", 1) == 1)
-            sent = t_now_us();
         t_sleep_us(LAT_TICK_US);
-        int64_t now = t_now_us();
-        t_note_late(now - t0 - LAT_TICK_US);
-        if (sent != 0) {
-            if (read(s, &b, 1) == 1)
-                sent = 0; /* delivered within the tick: on time */
-            else
-                t_note_late(now - sent); /* still on its way: as late as that */
-        }
+        t_note_late(t_now_us() - t0 - LAT_TICK_US);
     }
     return NULL;
 }
@@ -868,7 +825,7 @@ static int run_case(const t_case_t *c, int run)
     if (t_failures == failures || late <= limit_ms * 1000 || run + 1 >= LAT_RUNS)
         return 0;
     fprintf(stderr, "  [%s] run %d of %d: the checks above are taken back: a thread of this "
-            "test or the kernel's pty delivery was up to %.1f ms late during it (the "
+            "test was up to %.1f ms late during it (the "
             "scenarios' timings allow %ld ms: MBFB_TEST_LATENCY_MS); run again\n", t_scenario,
             run + 1, LAT_RUNS, (double)late / 1e3, limit_ms);
     t_failures = failures;

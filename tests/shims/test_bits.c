@@ -1,6 +1,6 @@
 /*
  * test_bits.c - coils and discrete inputs (FC01, FC02, FC05, FC15) in each serial framing,
- * against the scripted peer on a pty (it packs and unpacks bits with its own code):
+ * against the scripted peer on the test line (it packs and unpacks bits with its own code):
  *   reads          the Modbus application protocol's examples (6.1, 6.2): the request on
  *                  the wire byte for byte, the bits packed into words (LSB first), the
  *                  take's count in bits, a take into fewer words

@@ -1,5 +1,5 @@
 /*
- * test_bus.c - the shims on a pty against a scripted peer: the manuals' frames byte
+ * test_bus.c - the shims on the test line against a scripted peer: the manuals' frames byte
  * for byte in all three serial framings, broadcast, bad arguments (nothing on the
  * wire), queue full, cancel, stale handles, settings conflicts, a missing port, port
  * loss and reopen, several devices on one bus with one of them dead.

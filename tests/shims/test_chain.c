@@ -1,6 +1,6 @@
 /*
  * test_chain.c - chains (mbfb_post_chain), for each serial framing, against a scripted peer
- * on a pty that logs every request and counts the writes it applies:
+ * on the test line that logs every request and counts the writes it applies:
  *   order          entries written and read back in order, one write each, all held
  *   not_held       a read-back that differs (the device clamps entry 2): 209, held = 2
  *   exception      an entry refused (exception 3): stops there, later entries not sent
@@ -343,7 +343,7 @@ static void shutdown_mid(void)
 
     peer_release(&P);
     mbfb_shutdown(); /* ends the attempt on the wire, starts no other */
-    /* the worker is gone: whatever it wrote is in the pty; the peer reads all of it */
+    /* the worker is gone: whatever it wrote is on the line; the peer reads all of it */
     for (int64_t end = t_now_us() + 10000000; peer_pending(&P) > 0 && t_now_us() < end;)
         t_sleep_ms(2);
     CHECK(__atomic_load_n(&writes, __ATOMIC_ACQUIRE) <= 3);

@@ -1,7 +1,7 @@
 /*
  * test_failures.c - every failure of a transaction, for each serial framing (RTU via
- * libmodbus, ASCII and RTU-without-CRC written here), against a scripted peer on a
- * pty: no reply, bad CRC/LRC, wrong slave, exception, truncated frame, noise, wrong
+ * libmodbus, ASCII and RTU-without-CRC written here), against a scripted peer on the
+ * test line: no reply, bad CRC/LRC, wrong slave, exception, truncated frame, noise, wrong
  * echo / byte count, and late replies, which must never be taken as the answer to
  * the next request.
  */

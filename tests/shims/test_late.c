@@ -1,7 +1,7 @@
 /*
  * test_late.c - late replies and a talking line are harmless, for each serial framing
  * (RTU via libmodbus, ASCII and RTU-without-CRC written here), against a scripted peer
- * on a pty. Before every request the shims wait until the line has been silent (the
+ * on the test line. Before every request the shims wait until the line has been silent (the
  * gap; a whole response timeout before another slave's request after a failed one),
  * reading, discarding and counting every byte that arrives meanwhile (diag.stray_bytes):
  *   late_in_wait     a late reply arrives while the next request's resync read waits
@@ -24,10 +24,7 @@
  * fires 400..533 ms after it was handed to the line, depending on flavour/framing. */
 #define T_MS 400
 #define BAUD 600
-/* One character's time at BAUD (8N1): a babbling device cannot talk faster than this. A
- * babbler at 1 byte/ms (18 times the line's pace) made the kernel's pty worker, shared by
- * every pty of the machine, hold other tests' bytes for seconds when three ran beside two
- * busy loops (a probe pty: 10 s) */
+/* One character's time at BAUD (8N1): a babbling device cannot talk faster than this */
 #define CHAR_US (10 * 1000000 / BAUD)
 
 #define NREG 10   /* registers per read: replies of 25 (RTU) / 51 (ASCII) bytes */
@@ -339,9 +336,9 @@ static void small_map(peer_t *p, int n, const uint8_t *f, int len, peer_reply_t 
  * map, which such a device answers with exceptions. Back, the first request that goes on
  * the wire (the others are refused OFFLINE until the next probe) gets its own answer.
  * Response timeout OUTAGE_T_MS, so a probe every 10 of them (MBFB_PROBE_SHARE): with 50 ms
- * (a probe every 0.5 s, 11 probes) the three answers of the return had to cross the pty
- * within 50 ms each, and under a load of 14 on 2 cores one came later (the peer wrote it at
- * once; the kernel's pty delivery runs in a worker thread). OUTAGE_PROBES probes are
+ * (a probe every 0.5 s, 11 probes) the three answers of the return had to cross the line
+ * within 50 ms each, and under a load of 14 on 2 cores one came later (on a pty, whose
+ * delivery runs in a kernel worker thread). OUTAGE_PROBES probes are
  * enough: one that took a new shape makes `distinct` more than 6. */
 #define OUTAGE_T_MS 200
 #define OUTAGE_PROBES 3

@@ -1,5 +1,5 @@
 /*
- * test_plans.c - refresh plans (mbfb_plan_*) on a pty against the scripted peer (RTU):
+ * test_plans.c - refresh plans (mbfb_plan_*) on the test line against the scripted peer (RTU):
  *   snapshot   one refresh = the items back to back, one consistent snapshot; take
  *              returns 0 when nothing is new; bad settings refused
  *   tiers      SLOW in the first refresh and after invalidate (gen), FAST otherwise;

@@ -1,6 +1,6 @@
 /*
  * test_writes.c - confirmed writes (mbfb_post_write), for each serial framing, against a
- * scripted peer on a pty that counts how often each write was applied:
+ * scripted peer on the test line that counts how often each write was applied:
  *   false_fc16     a false confirmation: the device is busy sending a 600 ms
  *                  late echo of write A and does not hear write B; A's echo must not
  *                  confirm B. Both end DONE only once the device holds them, each
