@@ -15,7 +15,7 @@ mkdir -p "$tmp/before"
 git archive "$ref" c_shims | tar -x -C "$tmp/before"
 build() { # $1 out, $2 c_shims dir
     cc -O2 -std=gnu11 -I tests/shims -I "$2/include" -I "$2/src" \
-        bench/late_blind.c tests/shims/mbfb_test_peer.c "$2"/src/*.c \
+        bench/late_blind.c tests/shims/mbfb_test_peer.c tests/shims/testline.c "$2"/src/*.c \
         $(pkg-config --cflags --libs libmodbus) -lpthread -lutil -lm \
         -Wl,-rpath,"$(pkg-config --variable=libdir libmodbus)" -o "$1"
 }

@@ -17,6 +17,7 @@ import termios
 import tty
 
 from . import frames
+from .lineoffer import LineOffer
 from .ptyline import PtyLine
 
 LONG_GAP = 0.05   # an incomplete frame (by its function's length) is dropped after this silence
@@ -58,6 +59,7 @@ class SerialLine:
         self.rng = random.Random(f"{seed}:turnaround")
         self.fd = self.slave_fd = None
         self.ser = None
+        self.offer = None               # own pty: the tests' socket beside it (lineoffer.py)
         self.path = None
         self.rx: dict = {}              # framing -> Receiver
         self.wlock = asyncio.Lock()
@@ -100,6 +102,7 @@ class SerialLine:
             if speed is None:
                 set_speed(self.slave_fd, self.line.baud)
             self.path = os.ttyname(self.slave_fd)
+            self.offer = LineOffer(self.path, self._feed)
             self._relink()
         else:
             import serial  # pyserial, pinned in requirements.txt
@@ -137,6 +140,9 @@ class SerialLine:
                 os.close(self.slave_fd)
         if self.ptyline is not None:
             self.ptyline.stop(final=remove_link)
+        if self.offer is not None:
+            self.offer.close()
+            self.offer = None
         self.fd = self.slave_fd = None
         if remove_link and self.link and os.path.islink(self.link):
             os.unlink(self.link)
@@ -183,8 +189,11 @@ class SerialLine:
             return
         except OSError:
             return                      # EIO while no master has the pty open
-        if not data:
-            return
+        if data:
+            self._feed(data)
+
+    def _feed(self, data: bytes):
+        """Bytes the line carried (from the pty, or from a test's socket: lineoffer.py)."""
         receivers = self.receivers()
         mixed = len(receivers) > 1
         for rx in receivers:
@@ -246,6 +255,11 @@ class SerialLine:
                     return
 
     def _write(self, data: bytes) -> bool:
+        sent = self.offer.send(data) if self.offer is not None else None
+        if sent is not None:
+            if not sent:
+                self.counters["tx_overflow"] += 1
+            return sent
         view = memoryview(data)
         while view:
             try:
