@@ -116,9 +116,26 @@ def main() -> int:
             if rc != 0:
                 print("--- simulator stderr (tail) ---")
                 print(sim.stderr()[-3000:])
+                print_log_tail(sim)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     return 0 if rc == 0 else 1
+
+
+LOG_TAIL = 40   # frames of the simulator's log shown after a failure
+
+
+def print_log_tail(sim) -> None:
+    """The simulator's frames since the program last cleared its log (the last LOG_TAIL), with
+    their times: what was on the line when a check failed."""
+    try:
+        log = sim.log(clear=False)
+    except Exception as err:  # noqa: BLE001 - a dead simulator: say so, the failure stands
+        print(f"--- simulator log: not read ({err}) ---")
+        return
+    print(f"--- simulator log (last {min(LOG_TAIL, len(log))} of {len(log)} frames, s) ---")
+    for e in log[-LOG_TAIL:]:
+        print(f"{e.get('t', 0):10.3f} {e.get('dir', '?'):2} {e.get('hex', '')} {e.get('info', '')}")
 
 
 DOUBLE_GPIOCHIP = "gpiochip-double"   # the chip the test double has (a program asks for it)
