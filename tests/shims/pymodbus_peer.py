@@ -1,7 +1,8 @@
 """A Modbus slave from pymodbus (a peer we did not write), for test_pymodbus.c and
 test_rtutcp.c.
 
-usage: pymodbus_peer.py PORT rtu|ascii     serial server on PORT; prints READY
+usage: pymodbus_peer.py PORT rtu|ascii     serial server on PORT (a device, or socket://
+                                           HOST:PORT, where it listens); prints READY
        pymodbus_peer.py rtu-tcp [mvd94 [poll]]  RTU framer on a TCP server at 127.0.0.1, any
                                            free port (RTU over TCP); prints READY PORT
 Slave 1: holding register at PDU address a = 0x3001 + a, input register = 0x4001 + a

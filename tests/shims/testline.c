@@ -118,9 +118,11 @@ static void close_all(int a, int b, int c, int d)
             real_close(fds[i]);
 }
 
-int tl_make(const char *link, int *peer_fd)
+/* A line named `link` whose shims' end is `shims_end` and whose peer's end is `peer_end`
+ * (-1: in another process); both closed by tl_drop. 0 or -1 (nothing kept). */
+static int make(const char *link, int shims_end, int peer_end)
 {
-    int sv[2] = {-1, -1}, m = -1, s = -1, fd, i;
+    int m = -1, s = -1, fd, i;
     struct stat st;
     struct termios tio;
 
@@ -128,11 +130,9 @@ int tl_make(const char *link, int *peer_fd)
     if ((fd = real_open(link, O_WRONLY | O_CREAT | O_TRUNC | O_CLOEXEC, 0600)) < 0)
         return -1;
     real_close(fd);
-    if (stat(link, &st) != 0 || socketpair(AF_UNIX, SOCK_STREAM | SOCK_CLOEXEC, 0, sv) != 0 ||
-        sv[0] >= TL_FDS || sv[1] >= TL_FDS || openpty(&m, &s, NULL, NULL, NULL) != 0) {
-        close_all(sv[0], sv[1], -1, -1);
+    if (stat(link, &st) != 0 || shims_end >= TL_FDS || peer_end >= TL_FDS ||
+        openpty(&m, &s, NULL, NULL, NULL) != 0)
         return -1;
-    }
     if (real_tcgetattr(s, &tio) == 0) { /* raw, as a port the shims set */
         cfmakeraw(&tio);
         (void)real_tcsetattr(s, TCSANOW, &tio);
@@ -141,18 +141,35 @@ int tl_make(const char *link, int *peer_fd)
     for (i = 0; i < TL_LINES && lines[i].used; i++) {
     }
     if (i < TL_LINES) {
-        lines[i] = (tl_line_t){1, st.st_dev, st.st_ino, sv[1], sv[0], m, s};
-        mark(sv[0], TL_PEER);
+        lines[i] = (tl_line_t){1, st.st_dev, st.st_ino, shims_end, peer_end, m, s};
+        mark(peer_end >= 0 ? peer_end : shims_end, TL_PEER);
         __atomic_fetch_add(&n_lines, 1, __ATOMIC_RELEASE);
     }
     pthread_mutex_unlock(&lock);
     if (i == TL_LINES) {
         fprintf(stderr, "testline: more than %d lines at once\n", TL_LINES);
-        close_all(sv[0], sv[1], m, s);
+        close_all(m, s, -1, -1);
+        return -1;
+    }
+    return 0;
+}
+
+int tl_make(const char *link, int *peer_fd)
+{
+    int sv[2];
+    if (socketpair(AF_UNIX, SOCK_STREAM | SOCK_CLOEXEC, 0, sv) != 0)
+        return -1;
+    if (make(link, sv[1], sv[0]) != 0) {
+        close_all(sv[0], sv[1], -1, -1);
         return -1;
     }
     *peer_fd = sv[0];
     return 0;
+}
+
+int tl_adopt(const char *link, int sock)
+{
+    return make(link, sock, -1);
 }
 
 void tl_drop(const char *link, int peer_fd)
@@ -160,8 +177,10 @@ void tl_drop(const char *link, int peer_fd)
     pthread_mutex_lock(&lock);
     for (int i = 0; i < TL_LINES; i++) {
         tl_line_t *l = &lines[i];
-        if (l->used && l->peer_end == peer_fd) {
+        int adopted = l->peer_end < 0 && l->shims_end == peer_fd;
+        if (l->used && (l->peer_end == peer_fd || adopted)) {
             /* the shims' descriptors read EOF, write EPIPE, and their settings EIO */
+            mark(l->shims_end, 0);
             close_all(l->shims_end, l->pty_master, l->pty_slave, -1);
             l->used = 0;
             __atomic_fetch_sub(&n_lines, 1, __ATOMIC_RELEASE);
@@ -169,8 +188,10 @@ void tl_drop(const char *link, int peer_fd)
     }
     pthread_mutex_unlock(&lock);
     unlink(link);
-    mark(peer_fd, 0);
-    real_close(peer_fd);
+    if (kind(peer_fd) == TL_PEER) { /* tl_adopt's sock is the shims' end: closed above */
+        mark(peer_fd, 0);
+        real_close(peer_fd);
+    }
 }
 
 /* A descriptor of the line inside this program that `path` names, its settings' descriptor

@@ -7,7 +7,10 @@
 /** Make a line named `link` (a plain file made there; the shims open that name): 0 and
  *  *peer_fd the peer's end (read, write, poll, FIONREAD), or -1. */
 int tl_make(const char *link, int *peer_fd);
-/** The peer is gone: the shims' descriptors of the line read EOF from now on, and `link`
+/** A line named `link` whose bytes go through `sock`, connected to a peer in another process
+ *  (pymodbus on a socket:// port: tests/shims/test_pymodbus.c): 0, or -1. */
+int tl_adopt(const char *link, int sock);
+/** The peer is gone (peer_fd: tl_make's, or tl_adopt's sock): the shims' descriptors of the line read EOF from now on, and `link`
  *  disappears, as a pulled USB adapter's node does. Closes peer_fd. */
 void tl_drop(const char *link, int peer_fd);
 
