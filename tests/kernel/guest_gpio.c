@@ -27,6 +27,7 @@
 #include <time.h>
 #include <unistd.h>
 
+#include "guest_bed.h"
 #include "mbfb.h"
 
 #define N_READS 6
@@ -163,9 +164,7 @@ static int one_case(const char *port, const char *simdir, const char *chip, int 
     c.data_bits = 8;
     c.stop_bits = 2;
     c.framing = MBFB_FRAMING_RTU;
-    /* a TCG guest behind a host pty on a loaded host (guest_serial.c, BED_TIMEOUT_MS): beside
-     * two busy loops 500 ms still lost 4 of 6 reads; a retry would add a pulse */
-    c.response_timeout_ms = 2000;
+    c.response_timeout_ms = BED_TIMEOUT_MS;
     c.retries = -1;
     c.direction = MBFB_DIR_GPIO;
     c.dir_active_low = active_low;

@@ -34,6 +34,7 @@
 #include <time.h>
 #include <unistd.h>
 
+#include "guest_bed.h"
 #include "mbfb.h"
 #include "mbfb_test.h" /* t_cfg, t_wait, t_now_us (tests/shims/mbfb_test_peer.c) */
 
@@ -103,13 +104,8 @@ static int finish(int req, uint16_t *v, int max)
     return rc < 0 ? rc : 0;
 }
 
-/* The bed's response timeout. The derived one (54 ms for a register at 9600) holds against a
- * device with a CPU of its own; here the guest runs under TCG on the host's cores, and beside
- * two busy loops the ARM guests' replies came later (MT-S9 in ASCII and without CRC, VD and
- * FDC on armhf; with 500 ms still a read at 230400 and two RTS requests in the PL011 guest).
- * These tests check the drivers; the timeout rule is tests/shims'. A device pulled is then
- * probed every 10 timeouts (the shims' MBFB_PROBE_SHARE): back within BACK_WITHIN_MS. */
-#define BED_TIMEOUT_MS 2000
+/* A device pulled is probed every 10 response timeouts (the shims' MBFB_PROBE_SHARE) once
+ * it is back: it answers within this. */
 #define BACK_WITHIN_MS (15 * BED_TIMEOUT_MS)
 
 /* The bed's lines: 8N2 (the MV-D94's format), BED_TIMEOUT_MS, the default retries. */

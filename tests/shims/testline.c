@@ -14,7 +14,7 @@
  *    there as on a device (mbfb_bus.c, port_key), and open() of that name hands them the
  *    socket's end;
  *  - between processes (built as libmbfb_testline.so, LD_PRELOAD): a pty that the simulator
- *    made and offers as a line (tools/sim/modsim/transport.py: a Unix socket
+ *    made and offers as a line (tools/sim/modsim/lineoffer.py: a Unix socket
  *    $MBFB_TESTLINE_DIR/mbfb-line-pts-N beside /dev/pts/N); open() of the pty (by any name)
  *    connects to that socket and keeps the pty for the settings, which the simulator reads
  *    on its side as before. A pty without such a socket stays a pty.
@@ -57,7 +57,8 @@ typedef struct {
     int used;
     dev_t dev;               /* the node of its name                                       */
     ino_t ino;
-    int shims_end, peer_end; /* the socket pair                                            */
+    int shims_end, peer_end; /* the socket pair; peer_end -1: the peer is another process  */
+    int key;                 /* the descriptor tl_drop names it by: peer_end, or shims_end */
     int pty_master, pty_slave; /* the settings                                             */
 } tl_line_t;
 
@@ -141,8 +142,9 @@ static int make(const char *link, int shims_end, int peer_end)
     for (i = 0; i < TL_LINES && lines[i].used; i++) {
     }
     if (i < TL_LINES) {
-        lines[i] = (tl_line_t){1, st.st_dev, st.st_ino, shims_end, peer_end, m, s};
-        mark(peer_end >= 0 ? peer_end : shims_end, TL_PEER);
+        int key = peer_end >= 0 ? peer_end : shims_end;
+        lines[i] = (tl_line_t){1, st.st_dev, st.st_ino, shims_end, peer_end, key, m, s};
+        mark(key, TL_PEER);
         __atomic_fetch_add(&n_lines, 1, __ATOMIC_RELEASE);
     }
     pthread_mutex_unlock(&lock);
@@ -177,21 +179,18 @@ void tl_drop(const char *link, int peer_fd)
     pthread_mutex_lock(&lock);
     for (int i = 0; i < TL_LINES; i++) {
         tl_line_t *l = &lines[i];
-        int adopted = l->peer_end < 0 && l->shims_end == peer_fd;
-        if (l->used && (l->peer_end == peer_fd || adopted)) {
+        if (l->used && l->key == peer_fd) {
             /* the shims' descriptors read EOF, write EPIPE, and their settings EIO */
             mark(l->shims_end, 0);
-            close_all(l->shims_end, l->pty_master, l->pty_slave, -1);
+            if (l->peer_end >= 0)
+                mark(l->peer_end, 0);
+            close_all(l->shims_end, l->peer_end, l->pty_master, l->pty_slave);
             l->used = 0;
             __atomic_fetch_sub(&n_lines, 1, __ATOMIC_RELEASE);
         }
     }
     pthread_mutex_unlock(&lock);
     unlink(link);
-    if (kind(peer_fd) == TL_PEER) { /* tl_adopt's sock is the shims' end: closed above */
-        mark(peer_fd, 0);
-        real_close(peer_fd);
-    }
 }
 
 /* A descriptor of the line inside this program that `path` names, its settings' descriptor
